@@ -1,0 +1,196 @@
+"""Numeric phase: assemble ``A = M - a dF/dq - b dF/dqd`` over the free DOFs.
+
+Implicit Euler uses ``(a, b) = (h^2, h)`` (seed eq. 1); BDF2 ``((2h/3)^2, 2h/3)``.
+
+Design: at construction (the symbolic phase, once per model) every block a term
+can emit is mapped to its destination in the BSR data array; blocks that touch a
+fixed particle are dropped there. The map is stored as a sparse matrix ``S``
+(destination block x source block, entries +-1), so each assembly is one
+sparse-times-dense product ``S @ V`` over the stacked 3x3 value blocks ``V`` of all
+terms, written into the data array of a BSR matrix whose pattern never changes.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..forces import JACOBIAN_MODES
+from .pattern import BlockPattern
+
+__all__ = ["SystemAssembler", "SystemMatrix"]
+
+
+@dataclass(eq=False)
+class SystemMatrix:
+    """The assembled system over free DOFs, reused (updated in place) step to step.
+
+    Attributes
+    ----------
+    bsr : scipy.sparse.bsr_matrix, shape (3F, 3F)
+        The matrix; its ``data`` changes on every assembly, its pattern never.
+    pattern : BlockPattern
+    mode : str
+        Jacobian mode it was assembled with.
+    symmetric : bool
+        True when the assembled matrix is symmetric by construction.
+    positions : ndarray (F, 3) or None
+        Free-particle positions at which the Jacobians were evaluated (for AMG's
+        rigid-body near-null space).
+    version : int
+        Increments on every assembly (solvers key their caches on pattern + version).
+    """
+
+    bsr: sp.bsr_matrix
+    pattern: BlockPattern
+    mode: str = "exact"
+    symmetric: bool = True
+    positions: np.ndarray | None = None
+    version: int = 0
+    _cache: dict = field(default_factory=dict, repr=False)
+
+    @property
+    def shape(self):
+        return self.bsr.shape
+
+    def _scalar(self, fmt: str):
+        perm, indices, indptr = self.pattern.scalar_permutation(fmt)
+        cached = self._cache.get(fmt)
+        if cached is None:
+            cls = sp.csr_matrix if fmt == "csr" else sp.csc_matrix
+            cached = [cls((np.empty(perm.size), indices, indptr), shape=self.shape), -1]
+            cached[0].has_sorted_indices = True
+            self._cache[fmt] = cached
+        if cached[1] != self.version:
+            np.take(self.bsr.data.reshape(-1), perm, out=cached[0].data)
+            cached[1] = self.version
+        return cached[0]
+
+    def tocsr(self) -> sp.csr_matrix:
+        """Scalar CSR view (one gather, pattern precomputed; do not modify)."""
+        return self._scalar("csr")
+
+    def tocsc(self) -> sp.csc_matrix:
+        """Scalar CSC view (one gather, pattern precomputed; do not modify)."""
+        return self._scalar("csc")
+
+    def toarray(self) -> np.ndarray:
+        return self.bsr.toarray()
+
+    def __matmul__(self, x):
+        return self.bsr @ x
+
+
+class SystemAssembler:
+    """Assembles the implicit system of ``model`` for the force ``terms``.
+
+    Parameters
+    ----------
+    model : Model
+    terms : list of ForceTerm
+        Usually :func:`springsim.forces.make_force_terms` (model).
+
+    Attributes
+    ----------
+    free : ndarray (F,)
+        Free particle indices; the system's block row ``k`` is particle ``free[k]``.
+    pattern : BlockPattern
+    matrix : SystemMatrix
+        The persistent result of :meth:`assemble`.
+    last_time_s : float
+        Wall time of the last numeric assembly (Jacobian evaluation + scatter).
+    """
+
+    def __init__(self, model, terms):
+        t0 = time.perf_counter()
+        self.model = model
+        self.terms = list(terms)
+        n = model.particle_count
+        self.free = model.free_particles
+        F = self.free.size
+        self.free_map = np.full(n, -1, dtype=np.int64)
+        self.free_map[self.free] = np.arange(F)
+
+        rows, cols, srcs, signs = [], [], [], []
+        self._sources = []  # (term, "q"|"qd", offset, count)
+        offset = 0
+        for term in self.terms:
+            for which, layout in (("q", term.layout_q), ("qd", term.layout_qd)):
+                if layout is None:
+                    continue
+                r, c = self.free_map[layout.rows], self.free_map[layout.cols]
+                keep = (r >= 0) & (c >= 0)
+                rows.append(r[keep])
+                cols.append(c[keep])
+                srcs.append(layout.src[keep] + offset)
+                signs.append(layout.sign[keep])
+                self._sources.append((term, which, offset, layout.value_count))
+                offset += layout.value_count
+        self.value_count = offset
+        cat = (lambda xs, dt: np.concatenate(xs).astype(dt) if xs else np.zeros(0, dt))
+        rows, cols = cat(rows, np.int64), cat(cols, np.int64)
+        self.pattern = BlockPattern(F, rows, cols)
+        dest = self.pattern.locate(rows, cols)
+        self._scatter = sp.csr_matrix((cat(signs, np.float64), (dest, cat(srcs, np.int64))),
+                                      shape=(self.pattern.nnzb, self.value_count))
+        self._mass = np.zeros((self.pattern.nnzb, 3, 3))
+        self._mass[self.pattern.diagonal_positions] = model.particle_mass[self.free][:, None, None] * np.eye(3)
+        self._values = np.empty((self.value_count, 3, 3))
+        damped = any(getattr(t, "damped", np.zeros(0)).size for t in self.terms)
+        self._nonsymmetric_exact = damped
+        self.matrix = SystemMatrix(self.pattern.empty_bsr(), self.pattern)
+        self.symbolic_time_s = time.perf_counter() - t0
+        self.last_time_s = 0.0
+
+    @property
+    def dof_count(self) -> int:
+        return 3 * self.free.size
+
+    def assemble(self, q: np.ndarray, qd: np.ndarray, a: float, b: float, mode: str = "exact") -> SystemMatrix:
+        """Fill and return :attr:`matrix` = ``M - a dF/dq - b dF/dqd`` at ``(q, qd)``.
+
+        Parameters
+        ----------
+        q, qd : ndarray (N, 3)
+            State of all particles where the Jacobians are evaluated.
+        a, b : float
+            Coefficients of the position and velocity Jacobians.
+        mode : {"exact", "symmetric", "spd"}
+        """
+        if mode not in JACOBIAN_MODES:
+            raise ValueError(f"jacobian mode must be one of {', '.join(JACOBIAN_MODES)}, got {mode!r}")
+        t0 = time.perf_counter()
+        V = self._values
+        for term in self.terms:
+            jq, jqd = (None, None)
+            if term.layout_q is not None or term.layout_qd is not None:
+                jq, jqd = term.eval_jacobians(q, qd, mode)
+            for src_term, which, off, cnt in self._sources:
+                if src_term is not term:
+                    continue
+                blocks = jq if which == "q" else jqd
+                np.multiply(blocks.values, -(a if which == "q" else b), out=V[off:off + cnt])
+        data = self.matrix.bsr.data
+        if self.value_count:
+            np.add(self._mass, (self._scatter @ V.reshape(-1, 9)).reshape(-1, 3, 3), out=data)
+        else:
+            data[...] = self._mass
+        m = self.matrix
+        m.mode = mode
+        m.symmetric = mode != "exact" or not self._nonsymmetric_exact
+        m.positions = q[self.free]
+        m.version += 1
+        self.last_time_s = time.perf_counter() - t0
+        return m
+
+    # -- helpers to move between full (N, 3) arrays and free DOF vectors -------------------
+    def gather(self, x: np.ndarray) -> np.ndarray:
+        """Free DOF vector (3F,) from a full (N, 3) array."""
+        return x[self.free].reshape(-1)
+
+    def scatter_add(self, target: np.ndarray, dx: np.ndarray, scale: float = 1.0) -> None:
+        """``target[free] += scale * dx`` with ``dx`` a free DOF vector (3F,)."""
+        target[self.free] += scale * dx.reshape(-1, 3)

@@ -1,0 +1,324 @@
+"""`ModelBuilder`: assemble a :class:`~springsim.model.Model` item by item or in bulk.
+
+Single-item calls (``add_particle``, ``add_spring``, ``add_gravitational``) return the
+new item's index; their bulk twins (``add_particles``, ``add_springs``,
+``add_gravitationals``) take arrays and return the index range, so a million springs
+are added without a Python loop. :meth:`ModelBuilder.finalize` validates everything
+and raises :class:`~springsim.errors.SceneError` naming the first offending item,
+with the same field paths as the YAML scene format (``springs[12].stiffness``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .errors import SceneError
+from .model import AXES, Model
+
+__all__ = ["ModelBuilder"]
+
+
+def _as_rows(name: str, value, count: int | None = None, width: int = 3) -> np.ndarray:
+    try:
+        a = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise SceneError(name, f"must be numeric, got {value!r}") from None
+    if a.ndim == 1 and a.shape[0] == width and count in (None, 1) and width > 1:
+        a = a[None, :]
+    if a.ndim != 2 or a.shape[1] != width:
+        raise SceneError(name, f"must have shape (n, {width}), got {a.shape}")
+    if count is not None and a.shape[0] != count:
+        raise SceneError(name, f"must have {count} rows, got {a.shape[0]}")
+    return a
+
+
+def _as_column(name: str, value, count: int, dtype=np.float64) -> np.ndarray:
+    try:
+        a = np.asarray(value, dtype=dtype)
+    except (TypeError, ValueError):
+        raise SceneError(name, f"must be numeric, got {value!r}") from None
+    if a.ndim == 0:
+        return np.full(count, a, dtype=dtype)
+    if a.shape != (count,):
+        raise SceneError(name, f"must be a scalar or have shape ({count},), got {a.shape}")
+    return a
+
+
+def _as_pairs(name: str, value) -> np.ndarray:
+    a = np.asarray(value)
+    if a.ndim == 1 and a.shape[0] == 2:
+        a = a[None, :]
+    if a.ndim != 2 or a.shape[1] != 2:
+        raise SceneError(name, f"must have shape (n, 2), got {a.shape}")
+    if a.size and not np.issubdtype(a.dtype, np.integer):
+        af = a.astype(np.float64)
+        if not np.all(np.isfinite(af)) or np.any(af != np.round(af)):
+            raise SceneError(name, "particle ids must be integers")
+        a = af
+    return a.astype(np.int64)
+
+
+class ModelBuilder:
+    """Collects particles and pairwise terms, then :meth:`finalize` s them into a Model.
+
+    Parameters
+    ----------
+    gravity
+        Acceleration along the up axis [m/s^2]; default -9.81.
+    up_axis
+        ``"x"``, ``"y"``, ``"z"`` (default) or 0, 1, 2.
+    pair_epsilon
+        Pair distance [m] below which the pair direction is undefined; see
+        :mod:`springsim.forces.spring`.
+
+    Examples
+    --------
+    >>> b = ModelBuilder()
+    >>> i = b.add_particle((0, 0, 1), mass=0.1, fixed=True)
+    >>> j = b.add_particle((0, 0, 0), mass=0.1)
+    >>> b.add_spring(i, j, ke=100.0, kd=0.5)
+    0
+    >>> b.finalize()
+    Model(particles=2, fixed=1, springs=1, gravitational=0)
+    """
+
+    def __init__(self, *, gravity: float = -9.81, up_axis: int | str = "z", pair_epsilon: float = 1e-9):
+        self.gravity = gravity
+        self.up_axis = up_axis
+        self.pair_epsilon = pair_epsilon
+        self._particles: dict[str, list[np.ndarray]] = {k: [] for k in ("q", "qd", "mass", "radius", "drag", "fixed")}
+        self._springs: dict[str, list[np.ndarray]] = {k: [] for k in ("ij", "ke", "kd", "l0")}
+        self._gravs: dict[str, list[np.ndarray]] = {k: [] for k in ("ij", "G")}
+        self._n_particles = 0
+        self._n_springs = 0
+        self._n_gravs = 0
+        self.metadata: dict = {}
+
+    # -- counts -----------------------------------------------------------------
+    @property
+    def particle_count(self) -> int:
+        return self._n_particles
+
+    @property
+    def spring_count(self) -> int:
+        return self._n_springs
+
+    @property
+    def gravitational_count(self) -> int:
+        return self._n_gravs
+
+    # -- particles --------------------------------------------------------------
+    def add_particle(self, pos, vel=(0.0, 0.0, 0.0), mass: float = 1.0, *, radius: float | None = None,
+                     drag: float = 0.0, fixed: bool = False) -> int:
+        """Add one particle and return its index.
+
+        Parameters
+        ----------
+        pos, vel
+            Position [m] and velocity [m/s], 3-vectors.
+        mass
+            Mass [kg], > 0.
+        radius
+            Drawing radius [m] (optional).
+        drag
+            Linear drag coefficient [N s/m] (``F = -drag * qd``), >= 0.
+        fixed
+            A fixed particle never moves (its velocity is forced to zero).
+        """
+        start = self.add_particles([pos], [vel], mass, radius=np.nan if radius is None else radius,
+                                   drag=drag, fixed=fixed)
+        return start.start
+
+    def add_particles(self, pos, vel=None, mass=1.0, *, radius=np.nan, drag=0.0, fixed=False) -> range:
+        """Add particles in bulk and return the range of their indices.
+
+        ``pos`` has shape (n, 3); ``vel`` (n, 3) or None; ``mass``, ``radius``,
+        ``drag`` and ``fixed`` are scalars or arrays of shape (n,).
+        """
+        q = _as_rows("particles.pos", pos)
+        n = q.shape[0]
+        qd = np.zeros((n, 3)) if vel is None else _as_rows("particles.vel", vel, n)
+        p = self._particles
+        p["q"].append(q.copy())
+        p["qd"].append(qd.copy())
+        p["mass"].append(_as_column("particles.mass", mass, n))
+        p["radius"].append(_as_column("particles.radius", np.nan if radius is None else radius, n))
+        p["drag"].append(_as_column("particles.drag", drag, n))
+        p["fixed"].append(_as_column("particles.fixed", fixed, n, dtype=bool))
+        start = self._n_particles
+        self._n_particles += n
+        return range(start, self._n_particles)
+
+    # -- springs ------------------------------------------------------------------
+    def add_spring(self, i: int, j: int, ke: float, kd: float = 0.0, rest_length: float | None = None) -> int:
+        """Add a damped spring between particles ``i`` and ``j``; return its index.
+
+        Parameters
+        ----------
+        i, j
+            Particle indices (``i != j``).
+        ke
+            Stiffness [N/m], >= 0.
+        kd
+            Damping [N s/m] along the spring direction (seed eq. 8), >= 0.
+        rest_length
+            Rest length l0 [m]; ``None`` takes the distance at :meth:`finalize`.
+        """
+        return self.add_springs([[i, j]], ke, kd, np.nan if rest_length is None else rest_length).start
+
+    def add_springs(self, indices, ke, kd=0.0, rest_length=None) -> range:
+        """Add springs in bulk: ``indices`` (n, 2); ``ke``, ``kd``, ``rest_length`` scalars or (n,).
+
+        A NaN (or ``None``) rest length means "the initial distance".
+        """
+        ij = _as_pairs("springs.particle_ids", indices)
+        n = ij.shape[0]
+        s = self._springs
+        s["ij"].append(ij)
+        s["ke"].append(_as_column("springs.stiffness", ke, n))
+        s["kd"].append(_as_column("springs.damping", kd, n))
+        s["l0"].append(_as_column("springs.rest_length", np.nan if rest_length is None else rest_length, n))
+        start = self._n_springs
+        self._n_springs += n
+        return range(start, self._n_springs)
+
+    # -- gravitational pairs ---------------------------------------------------------
+    def add_gravitational(self, i: int, j: int, G: float) -> int:
+        """Add pairwise gravitational attraction ``F = -G m_i m_j (q_i - q_j)/|q_i - q_j|^3``."""
+        return self.add_gravitationals([[i, j]], G).start
+
+    def add_gravitationals(self, indices, G) -> range:
+        """Add gravitational pairs in bulk: ``indices`` (n, 2), ``G`` scalar or (n,)."""
+        ij = _as_pairs("gravitational.particle_ids", indices)
+        n = ij.shape[0]
+        self._gravs["ij"].append(ij)
+        self._gravs["G"].append(_as_column("gravitational.G", G, n))
+        start = self._n_gravs
+        self._n_gravs += n
+        return range(start, self._n_gravs)
+
+    # -- generators -----------------------------------------------------------------
+    def add_cloth_grid(self, nx: int, ny: int, **kwargs) -> range:
+        """Add an ``nx`` x ``ny`` cloth grid; see :func:`springsim.scene.gallery.add_cloth_grid`."""
+        from .scene.gallery import add_cloth_grid
+
+        return add_cloth_grid(self, nx, ny, **kwargs)
+
+    # -- finalize -------------------------------------------------------------------
+    @staticmethod
+    def _cat(chunks, shape_tail=(), dtype=np.float64):
+        if not chunks:
+            return np.zeros((0,) + shape_tail, dtype=dtype)
+        return np.concatenate(chunks).astype(dtype, copy=False)
+
+    def finalize(self) -> Model:
+        """Validate everything and return an immutable :class:`Model`.
+
+        Raises
+        ------
+        SceneError
+            Naming the first offending item, e.g. ``springs[3].stiffness: must be >= 0, got -1``.
+        """
+        p, s, g = self._particles, self._springs, self._gravs
+        q = self._cat(p["q"], (3,))
+        qd = self._cat(p["qd"], (3,))
+        mass = self._cat(p["mass"])
+        radius = self._cat(p["radius"])
+        drag = self._cat(p["drag"])
+        fixed = self._cat(p["fixed"], dtype=bool)
+        n = q.shape[0]
+
+        _check_finite("particles", "pos", q)
+        _check_finite("particles", "vel", qd)
+        _check_finite("particles", "mass", mass)
+        _check_rule("particles", "mass", mass, mass > 0, "must be > 0")
+        _check_finite("particles", "drag", drag)
+        _check_rule("particles", "drag", drag, drag >= 0, "must be >= 0")
+        bad = np.flatnonzero(~np.isnan(radius) & ~(np.isfinite(radius) & (radius >= 0)))
+        if bad.size:
+            raise SceneError(f"particles[{bad[0]}].radius", f"must be finite and >= 0, got {radius[bad[0]]:g}")
+        qd = np.where(fixed[:, None], 0.0, qd)
+
+        sij = self._cat(s["ij"], (2,), np.int64)
+        ke, kd, l0 = self._cat(s["ke"]), self._cat(s["kd"]), self._cat(s["l0"])
+        _check_pairs("springs", sij, n)
+        for name, v in (("stiffness", ke), ("damping", kd)):
+            _check_finite("springs", name, v)
+            _check_rule("springs", name, v, v >= 0, "must be >= 0")
+        given = ~np.isnan(l0)
+        _check_rule("springs", "rest_length", l0, ~given | (np.isfinite(l0) & (l0 >= 0)),
+                    "must be finite and >= 0")
+        if sij.shape[0]:
+            dist = np.linalg.norm(q[sij[:, 0]] - q[sij[:, 1]], axis=1)
+            l0 = np.where(given, l0, dist)
+
+        gij = self._cat(g["ij"], (2,), np.int64)
+        G = self._cat(g["G"])
+        _check_pairs("gravitational", gij, n)
+        _check_finite("gravitational", "G", G)
+        _check_rule("gravitational", "G", G, G >= 0, "must be >= 0")
+
+        gravity = _scalar("solver.gravity", self.gravity)
+        eps = _scalar("pair_epsilon", self.pair_epsilon)
+        if eps <= 0:
+            raise SceneError("pair_epsilon", f"must be > 0, got {eps:g}")
+        up = self.up_axis
+        if isinstance(up, str):
+            if up not in AXES:
+                raise SceneError("up_axis", f"must be one of {', '.join(AXES)}, got {up!r}")
+            up = AXES.index(up)
+        if up not in (0, 1, 2):
+            raise SceneError("up_axis", f"must be 0, 1 or 2, got {up!r}")
+
+        return Model(
+            particle_q=q, particle_qd=qd, particle_mass=mass, particle_radius=radius,
+            particle_drag=drag, particle_fixed=fixed,
+            spring_indices=sij, spring_stiffness=ke, spring_damping=kd, spring_rest_length=l0,
+            gravitational_indices=gij, gravitational_G=G,
+            gravity=gravity, up_axis=int(up), pair_epsilon=eps, metadata=dict(self.metadata),
+        )
+
+
+def _scalar(path: str, v) -> float:
+    try:
+        f = float(v)
+    except (TypeError, ValueError):
+        raise SceneError(path, f"must be a number, got {v!r}") from None
+    if not np.isfinite(f):
+        raise SceneError(path, f"must be finite, got {f}")
+    return f
+
+
+def _fmt(v) -> str:
+    if np.ndim(v) == 0:
+        return f"{float(v):g}"
+    return "[" + ", ".join(f"{float(x):g}" for x in np.ravel(v)) + "]"
+
+
+def _check_finite(group: str, name: str, a: np.ndarray) -> None:
+    ok = np.isfinite(a) if a.ndim == 1 else np.isfinite(a).all(axis=1)
+    bad = np.flatnonzero(~ok)
+    if bad.size:
+        raise SceneError(f"{group}[{bad[0]}].{name}", f"must be finite, got {_fmt(a[bad[0]])}")
+
+
+def _check_rule(group: str, name: str, a: np.ndarray, ok: np.ndarray, rule: str) -> None:
+    bad = np.flatnonzero(~ok)
+    if bad.size:
+        raise SceneError(f"{group}[{bad[0]}].{name}", f"{rule}, got {_fmt(a[bad[0]])}")
+
+
+def _check_pairs(group: str, ij: np.ndarray, n: int) -> None:
+    if not ij.shape[0]:
+        return
+    out = (ij < 0) | (ij >= n)
+    bad = np.flatnonzero(out.any(axis=1))
+    if bad.size:
+        k = bad[0]
+        raise SceneError(f"{group}[{k}].particle_ids",
+                         f"particle id out of range [0, {n}), got {ij[k].tolist()}")
+    bad = np.flatnonzero(ij[:, 0] == ij[:, 1])
+    if bad.size:
+        k = bad[0]
+        raise SceneError(f"{group}[{k}].particle_ids",
+                         f"a pair needs two different particles, got {ij[k].tolist()}")

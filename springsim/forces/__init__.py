@@ -1,0 +1,53 @@
+"""Force terms. Adding one is a new module plus one line in :data:`FORCE_TERMS`."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._base import JACOBIAN_MODES, BlockLayout, Blocks, ForceTerm
+from .drag import ForceDrag
+from .gravitational import ForceGravitational
+from .gravity import ForceGravity
+from .spring import ForceSpring
+
+__all__ = ["FORCE_TERMS", "JACOBIAN_MODES", "BlockLayout", "Blocks", "ForceTerm", "ForceDrag",
+           "ForceGravitational", "ForceGravity", "ForceSpring", "make_force_terms", "eval_forces",
+           "dense_jacobians"]
+
+#: Registry of force families, in evaluation order.
+FORCE_TERMS: dict[str, type[ForceTerm]] = {
+    "gravity": ForceGravity,
+    "drag": ForceDrag,
+    "spring": ForceSpring,
+    "gravitational": ForceGravitational,
+}
+
+
+def make_force_terms(model, *, skip_fixed: bool = True) -> list[ForceTerm]:
+    """Instantiate only the force terms ``model`` uses."""
+    terms = (cls.from_model(model, skip_fixed=skip_fixed) for cls in FORCE_TERMS.values())
+    return [t for t in terms if t is not None]
+
+
+def eval_forces(terms, q, qd, out: np.ndarray | None = None) -> np.ndarray:
+    """Total force (N, 3) [N] of ``terms`` at ``(q, qd)``."""
+    f = np.zeros_like(q) if out is None else out
+    if out is not None:
+        f.fill(0.0)
+    for t in terms:
+        t.eval_force(q, qd, f)
+    return f
+
+
+def dense_jacobians(terms, q, qd, mode: str = "exact") -> tuple[np.ndarray, np.ndarray]:
+    """Dense ``(dF/dq, dF/dqd)``, each (3N, 3N), summed over ``terms`` (small scenes only)."""
+    n = q.shape[0]
+    dq = np.zeros((3 * n, 3 * n))
+    dqd = np.zeros((3 * n, 3 * n))
+    for t in terms:
+        jq, jqd = t.eval_jacobians(q, qd, mode)
+        if jq is not None:
+            dq += jq.toarray(n)
+        if jqd is not None:
+            dqd += jqd.toarray(n)
+    return dq, dqd

@@ -1,0 +1,182 @@
+"""Force-term interface and the 3x3 block COO triplets every Jacobian is made of.
+
+A Jacobian is a sum of 3x3 blocks at (row particle, column particle). Terms store
+them compactly as :class:`Blocks`: a constant :class:`BlockLayout` (computed once
+per model) plus an array of value blocks (recomputed every evaluation). A pairwise
+term emits one 3x3 block ``K`` per pair, and its local 6x6 Jacobian is
+``[[K, -K], [-K, K]]``: four COO triplets ``(i,i,+K) (i,j,-K) (j,i,-K) (j,j,+K)``.
+:attr:`Blocks.rows`, :attr:`Blocks.cols` and :attr:`Blocks.blocks` give those
+triplets expanded; the assembler uses the compact form directly.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+
+__all__ = ["BlockLayout", "Blocks", "ForceTerm", "JACOBIAN_MODES"]
+
+#: Jacobian variants (see README, "Jacobian modes").
+#: ``exact``: the true derivative; ``symmetric``: drops the non-symmetric position
+#: derivative of spring damping; ``spd``: symmetric, with each local block projected so
+#: that ``-dF/dq`` is positive semi-definite.
+JACOBIAN_MODES = ("exact", "symmetric", "spd")
+
+
+@dataclass(frozen=True, eq=False)
+class BlockLayout:
+    """Where value blocks go: block ``values[src[k]] * sign[k]`` is added at ``(rows[k], cols[k])``.
+
+    Attributes
+    ----------
+    rows, cols : ndarray of int64, shape (k,)
+        Particle indices of each triplet.
+    src : ndarray of int64, shape (k,)
+        Which value block each triplet takes.
+    sign : ndarray of float64, shape (k,)
+        +1 or -1.
+    value_count : int
+        Number of value blocks a :class:`Blocks` with this layout carries.
+    """
+
+    rows: np.ndarray
+    cols: np.ndarray
+    src: np.ndarray
+    sign: np.ndarray
+    value_count: int
+
+    @classmethod
+    def pairs(cls, pairs: np.ndarray) -> "BlockLayout":
+        """Layout of ``[[K, -K], [-K, K]]`` for each pair ``(i, j)`` of ``pairs`` (P, 2)."""
+        i, j = pairs[:, 0], pairs[:, 1]
+        p = np.arange(pairs.shape[0], dtype=np.int64)
+        one = np.ones(pairs.shape[0])
+        return cls(np.concatenate([i, i, j, j]), np.concatenate([i, j, i, j]),
+                   np.concatenate([p, p, p, p]), np.concatenate([one, -one, -one, one]),
+                   pairs.shape[0])
+
+    @classmethod
+    def diagonal(cls, index: np.ndarray) -> "BlockLayout":
+        """Layout of one diagonal block per particle of ``index`` (k,)."""
+        index = np.asarray(index, dtype=np.int64)
+        k = index.shape[0]
+        return cls(index, index, np.arange(k, dtype=np.int64), np.ones(k), k)
+
+    @classmethod
+    def triplets(cls, rows: np.ndarray, cols: np.ndarray) -> "BlockLayout":
+        """Layout of general COO triplets, one value block each."""
+        rows = np.asarray(rows, dtype=np.int64)
+        k = rows.shape[0]
+        return cls(rows, np.asarray(cols, dtype=np.int64), np.arange(k, dtype=np.int64), np.ones(k), k)
+
+
+@dataclass(frozen=True, eq=False)
+class Blocks:
+    """3x3 block COO triplets in compact form: a layout and its value blocks (n, 3, 3)."""
+
+    layout: BlockLayout
+    values: np.ndarray
+
+    @property
+    def rows(self) -> np.ndarray:
+        return self.layout.rows
+
+    @property
+    def cols(self) -> np.ndarray:
+        return self.layout.cols
+
+    @property
+    def blocks(self) -> np.ndarray:
+        """Expanded triplet blocks, shape (k, 3, 3)."""
+        return self.values[self.layout.src] * self.layout.sign[:, None, None]
+
+    def toarray(self, particle_count: int) -> np.ndarray:
+        """Dense (3N, 3N) matrix of the summed triplets (reference and tests only)."""
+        out = np.zeros((particle_count, 3, particle_count, 3))
+        np.add.at(out, (self.rows, slice(None), self.cols, slice(None)), self.blocks)
+        return out.reshape(3 * particle_count, 3 * particle_count)
+
+
+class ForceTerm(ABC):
+    """A vectorised force family (springs, drag, ...).
+
+    Subclasses set :attr:`name`, build themselves from a model with
+    :meth:`from_model` (returning ``None`` when the model does not use them) and
+    implement :meth:`eval_force` and :meth:`eval_jacobians`.
+
+    Parameters of every method: ``q`` and ``qd`` are (N, 3) positions [m] and
+    velocities [m/s] of *all* particles.
+    """
+
+    #: Registry and YAML name.
+    name: ClassVar[str]
+
+    #: Layouts of dF/dq and dF/dqd, or None where the term does not depend on q / qd.
+    layout_q: BlockLayout | None = None
+    layout_qd: BlockLayout | None = None
+
+    @classmethod
+    @abstractmethod
+    def from_model(cls, model, *, skip_fixed: bool = True) -> "ForceTerm | None":
+        """The term for ``model``, or None when the model has nothing of it.
+
+        With ``skip_fixed`` (default), items acting only between fixed particles are
+        dropped: they never move anything.
+        """
+
+    @abstractmethod
+    def eval_force(self, q: np.ndarray, qd: np.ndarray, f_out: np.ndarray) -> None:
+        """Accumulate this term's forces [N] into ``f_out`` (N, 3)."""
+
+    def eval_jacobians(self, q: np.ndarray, qd: np.ndarray, mode: str = "exact") -> tuple[Blocks | None, Blocks | None]:
+        """``(dF/dq, dF/dqd)`` as :class:`Blocks` (or None where independent).
+
+        ``mode`` is one of :data:`JACOBIAN_MODES`.
+        """
+        return None, None
+
+    def potential_energy(self, q: np.ndarray) -> float:
+        """Potential energy [J] at ``q`` (0 for dissipative terms)."""
+        return 0.0
+
+    @property
+    def item_count(self) -> int:
+        """Number of items (pairs, particles) this term evaluates."""
+        return 0
+
+
+def pair_geometry(q: np.ndarray, pairs: np.ndarray, eps: float):
+    """Vectorised pair geometry.
+
+    Returns ``d = q_i - q_j`` (P, 3), ``l = |d|`` (P,), ``n = d / l`` (P, 3) and a
+    mask ``near`` of pairs closer than ``eps`` (where ``n`` is set to zero).
+    """
+    d = q[pairs[:, 0]] - q[pairs[:, 1]]
+    l = np.sqrt(np.einsum("ij,ij->i", d, d))
+    near = l < eps
+    n = d / np.where(near, 1.0, l)[:, None]
+    n[near] = 0.0
+    return d, l, n, near
+
+
+def outer(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise outer products, (P, 3) x (P, 3) -> (P, 3, 3)."""
+    return a[:, :, None] * b[:, None, :]
+
+
+def scatter_pair_forces(f_out: np.ndarray, pairs: np.ndarray, f: np.ndarray) -> None:
+    """Add ``f`` (P, 3) to the first particle of each pair and ``-f`` to the second."""
+    n = f_out.shape[0]
+    for c in range(3):  # loop over the three components, vectorised over pairs
+        f_out[:, c] += np.bincount(pairs[:, 0], weights=f[:, c], minlength=n)
+        f_out[:, c] -= np.bincount(pairs[:, 1], weights=f[:, c], minlength=n)
+
+
+def active_pairs(pairs: np.ndarray, fixed: np.ndarray, skip_fixed: bool) -> np.ndarray:
+    """Indices of the pairs that touch at least one free particle (all when not skipping)."""
+    if not skip_fixed:
+        return np.arange(pairs.shape[0])
+    return np.flatnonzero(~(fixed[pairs[:, 0]] & fixed[pairs[:, 1]]))

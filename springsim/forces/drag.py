@@ -1,0 +1,41 @@
+"""Linear drag ``F_i = -beta_i qd_i`` (seed eq. 5), with ``dF/dqd = -beta_i I``."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._base import BlockLayout, Blocks, ForceTerm
+
+__all__ = ["ForceDrag"]
+
+
+class ForceDrag(ForceTerm):
+    """Drag on the particles ``index`` (k,) with coefficients ``beta`` (k,) [N s/m]."""
+
+    name = "drag"
+
+    def __init__(self, index, beta):
+        self.index = np.asarray(index, dtype=np.int64)
+        self.beta = np.asarray(beta, dtype=np.float64)
+        self.layout_qd = BlockLayout.diagonal(self.index)
+        self._blocks = -self.beta[:, None, None] * np.eye(3)
+
+    @classmethod
+    def from_model(cls, model, *, skip_fixed=True):
+        use = model.particle_drag > 0
+        if skip_fixed:
+            use &= ~model.particle_fixed
+        index = np.flatnonzero(use)
+        if index.size == 0:
+            return None
+        return cls(index, model.particle_drag[index])
+
+    @property
+    def item_count(self) -> int:
+        return self.index.shape[0]
+
+    def eval_force(self, q, qd, f_out):
+        f_out[self.index] -= self.beta[:, None] * qd[self.index]
+
+    def eval_jacobians(self, q, qd, mode="exact"):
+        return None, Blocks(self.layout_qd, self._blocks)

@@ -1,0 +1,36 @@
+"""Constant gravity field: ``F_i = m_i g`` (seed 5.1). No Jacobian."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._base import ForceTerm
+
+__all__ = ["ForceGravity"]
+
+
+class ForceGravity(ForceTerm):
+    """Uniform gravity ``g`` [m/s^2] (3-vector) acting on masses ``mass`` (N,)."""
+
+    name = "gravity"
+
+    def __init__(self, mass, g):
+        self.mass = np.asarray(mass, dtype=np.float64)
+        self.g = np.asarray(g, dtype=np.float64)
+        self._force = self.mass[:, None] * self.g
+
+    @classmethod
+    def from_model(cls, model, *, skip_fixed=True):
+        if model.gravity == 0.0 or model.particle_count == 0:
+            return None
+        return cls(model.particle_mass, model.gravity_vector)
+
+    @property
+    def item_count(self) -> int:
+        return self.mass.shape[0]
+
+    def eval_force(self, q, qd, f_out):
+        f_out += self._force
+
+    def potential_energy(self, q):
+        return float(-np.sum(self._force * q))

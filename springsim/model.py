@@ -1,0 +1,155 @@
+"""The immutable :class:`Model` (what is constant during a run) and the :class:`State`.
+
+Symbols used throughout springsim: ``N`` particles, ``q`` positions and ``qd``
+velocities of shape (N, 3) [m], [m/s]; ``M`` the diagonal mass matrix.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+
+import numpy as np
+
+__all__ = ["Model", "State", "AXES"]
+
+#: Names of the coordinate axes, as accepted for ``up_axis``.
+AXES = ("x", "y", "z")
+
+
+def _readonly(a: np.ndarray) -> np.ndarray:
+    a = np.ascontiguousarray(a)
+    a.setflags(write=False)
+    return a
+
+
+@dataclass(frozen=True, eq=False)
+class Model:
+    """A validated mass-spring system; build it with :class:`springsim.ModelBuilder`.
+
+    All arrays are read-only. Integrators never write to a model.
+
+    Attributes
+    ----------
+    particle_q : ndarray, shape (N, 3)
+        Initial positions [m].
+    particle_qd : ndarray, shape (N, 3)
+        Initial velocities [m/s] (zero for fixed particles).
+    particle_mass : ndarray, shape (N,)
+        Masses [kg], all > 0.
+    particle_radius : ndarray, shape (N,)
+        Radii [m] used only for drawing (NaN where not given).
+    particle_drag : ndarray, shape (N,)
+        Linear drag coefficients beta [N s/m] of ``F = -beta qd``.
+    particle_fixed : ndarray of bool, shape (N,)
+        Fixed particles never move.
+    spring_indices : ndarray of int64, shape (S, 2)
+    spring_stiffness : ndarray, shape (S,)
+        ke [N/m].
+    spring_damping : ndarray, shape (S,)
+        kd [N s/m] of the damping force along the spring (seed eq. 8).
+    spring_rest_length : ndarray, shape (S,)
+        l0 [m].
+    gravitational_indices : ndarray of int64, shape (P, 2)
+    gravitational_G : ndarray, shape (P,)
+        Gravitational constant of each pair [N m^2/kg^2].
+    gravity : float
+        Acceleration along the up axis [m/s^2] (default -9.81).
+    up_axis : int
+        0, 1 or 2 for x, y, z.
+    pair_epsilon : float
+        Distance [m] below which a pair's direction is treated as undefined (see
+        :mod:`springsim.forces.spring`).
+    """
+
+    particle_q: np.ndarray
+    particle_qd: np.ndarray
+    particle_mass: np.ndarray
+    particle_radius: np.ndarray
+    particle_drag: np.ndarray
+    particle_fixed: np.ndarray
+    spring_indices: np.ndarray
+    spring_stiffness: np.ndarray
+    spring_damping: np.ndarray
+    spring_rest_length: np.ndarray
+    gravitational_indices: np.ndarray
+    gravitational_G: np.ndarray
+    gravity: float = -9.81
+    up_axis: int = 2
+    pair_epsilon: float = 1e-9
+    metadata: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if isinstance(v, np.ndarray):
+                object.__setattr__(self, f.name, _readonly(v))
+
+    # -- counts ---------------------------------------------------------------
+    @property
+    def particle_count(self) -> int:
+        return int(self.particle_mass.shape[0])
+
+    @property
+    def spring_count(self) -> int:
+        return int(self.spring_indices.shape[0])
+
+    @property
+    def gravitational_count(self) -> int:
+        return int(self.gravitational_indices.shape[0])
+
+    @property
+    def free_particles(self) -> np.ndarray:
+        """Indices of the particles that move, shape (F,)."""
+        return np.flatnonzero(~self.particle_fixed)
+
+    @property
+    def free_count(self) -> int:
+        return int(self.particle_count - np.count_nonzero(self.particle_fixed))
+
+    @property
+    def dof_count(self) -> int:
+        """Degrees of freedom of the implicit system (3 per free particle)."""
+        return 3 * self.free_count
+
+    @property
+    def gravity_vector(self) -> np.ndarray:
+        g = np.zeros(3)
+        g[self.up_axis] = self.gravity
+        return g
+
+    def state(self) -> "State":
+        """A fresh :class:`State` initialised from the model."""
+        return State(self.particle_q.copy(), self.particle_qd.copy())
+
+    def __repr__(self) -> str:
+        return (
+            f"Model(particles={self.particle_count}, fixed={int(self.particle_fixed.sum())}, "
+            f"springs={self.spring_count}, gravitational={self.gravitational_count})"
+        )
+
+
+@dataclass
+class State:
+    """Positions and velocities of all particles.
+
+    Attributes
+    ----------
+    particle_q : ndarray, shape (N, 3)
+        Positions [m].
+    particle_qd : ndarray, shape (N, 3)
+        Velocities [m/s].
+    """
+
+    particle_q: np.ndarray
+    particle_qd: np.ndarray
+
+    def copy(self) -> "State":
+        return State(self.particle_q.copy(), self.particle_qd.copy())
+
+    def assign(self, other: "State") -> None:
+        """Copy ``other``'s values into this state's arrays."""
+        self.particle_q[...] = other.particle_q
+        self.particle_qd[...] = other.particle_qd
+
+    def is_finite(self) -> bool:
+        return bool(np.isfinite(self.particle_q).all() and np.isfinite(self.particle_qd).all())
