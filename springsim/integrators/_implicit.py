@@ -55,7 +55,8 @@ class ImplicitIntegrator(Integrator):
         Backtrack the Newton update (halving, down to ``min_step``) until the residual
         norm decreases (Armijo). Full steps are taken near the solution, so quadratic
         convergence is kept; far from it (stiff cloth at large ``h``) plain Newton
-        diverges. Linearized implicit Euler never line-searches (seed eq. 3 exactly).
+        diverges. Only used when Newton runs to convergence (``converge=True``), so
+        linearized implicit Euler is seed eq. 3 exactly.
     solver_options : dict, optional
         Passed to the linear solver's constructor (e.g. ``{"rtol": 1e-6}``).
     """
@@ -81,7 +82,7 @@ class ImplicitIntegrator(Integrator):
         self.newton_tol = float(newton_tol)
         self.newton_maxiter = int(newton_maxiter)
         self.on_nonconvergence = on_nonconvergence
-        self.line_search = bool(line_search) and type(self).name != "linearized_implicit"
+        self.line_search = bool(line_search)
         self.min_step = float(min_step)
         self.assembler = SystemAssembler(model, self.terms)
         self._mass = model.particle_mass[:, None]
@@ -105,7 +106,8 @@ class ImplicitIntegrator(Integrator):
         maxiter : int, optional
             Iteration limit (default ``newton_maxiter``); 1 gives the linearized method.
         converge : bool
-            Apply the stopping rule and report non-convergence (False: exactly ``maxiter`` iterations).
+            Apply the stopping rule, line search and non-convergence report (False: exactly
+            ``maxiter`` plain Newton iterations).
 
         Returns
         -------
@@ -134,9 +136,9 @@ class ImplicitIntegrator(Integrator):
                 v_try = v.copy()
                 asm.scatter_add(v_try, dv, alpha)
                 q_try = q_hat + c * v_try
-                R_try = self._residual(q_try, v_try, v_hat, c, f.copy(), stats)
+                R_try = self._residual(q_try, v_try, v_hat, c, f, stats)
                 rn_try = float(np.linalg.norm(asm.gather(R_try)))
-                if (not self.line_search or rn_try <= (1.0 - 1e-4 * alpha) * rnorm
+                if (not (converge and self.line_search) or rn_try <= (1.0 - 1e-4 * alpha) * rnorm
                         or alpha <= self.min_step or not np.isfinite(rnorm)):
                     break
                 alpha *= 0.5
