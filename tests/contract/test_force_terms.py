@@ -1,0 +1,150 @@
+"""Contract tests of every registered force term (parametrised over FORCE_TERMS).
+
+A new term registered in :data:`springsim.forces.FORCE_TERMS` is checked here with
+no new test code, provided :func:`helpers.random_scene` exercises it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from helpers import fd_jacobians, random_scene, rel_err
+from springsim.forces import FORCE_TERMS, JACOBIAN_MODES, dense_jacobians, eval_forces
+
+FD_RTOL = 1e-6
+TERMS = sorted(FORCE_TERMS)
+
+
+def _term(name, model, skip_fixed=True):
+    term = FORCE_TERMS[name].from_model(model, skip_fixed=skip_fixed)
+    assert term is not None, f"random_scene must exercise the registered term {name!r} (extend tests/helpers.py)"
+    return term
+
+
+def _perturbed(model, rng, scale=0.05):
+    """A random configuration near the model's (springs stretched and compressed)."""
+    q = model.particle_q + rng.uniform(-scale, scale, model.particle_q.shape)
+    qd = model.particle_qd + rng.uniform(-0.5, 0.5, model.particle_q.shape)
+    return q, qd
+
+
+@pytest.mark.parametrize("damping", [True, False], ids=["damped", "undamped"])
+@pytest.mark.parametrize("skip_fixed", [True, False], ids=["skip_fixed", "all_pairs"])
+@pytest.mark.parametrize("name", TERMS)
+def test_exact_jacobians_match_finite_differences(name, skip_fixed, damping):
+    """Exact dF/dq and dF/dqd equal central finite differences (rel. error <= 1e-6) on random scenes."""
+    rng = np.random.default_rng(731)
+    for trial in range(3):
+        model = random_scene(rng, damping=damping)
+        term = _term(name, model, skip_fixed)
+        q, qd = _perturbed(model, rng)
+        jq, jqd = dense_jacobians([term], q, qd, "exact")
+        fq, fqd = fd_jacobians([term], q, qd)
+        for J, F in ((jq, fq), (jqd, fqd)):
+            if np.linalg.norm(F) == 0.0:
+                assert np.linalg.norm(J) == 0.0
+            else:
+                assert rel_err(J, F) <= FD_RTOL
+
+
+@pytest.mark.parametrize("mode", [m for m in JACOBIAN_MODES if m != "exact"])
+@pytest.mark.parametrize("name", TERMS)
+def test_approximate_modes_are_symmetric_and_dissipative(name, mode):
+    """``symmetric``/``spd`` Jacobians are symmetric; in ``spd`` mode -dF/dq and -dF/dqd are PSD."""
+    rng = np.random.default_rng(732)
+    model = random_scene(rng)
+    term = _term(name, model)
+    # strong compression exercises the clamped transverse coefficient of springs
+    q, qd = _perturbed(model, rng, scale=0.3)
+    jq, jqd = dense_jacobians([term], q, qd, mode)
+    for J in (jq, jqd):
+        scale = max(np.abs(J).max(), 1.0)
+        assert np.abs(J - J.T).max() <= 1e-13 * scale
+    if mode == "spd":
+        for J in (jq, jqd):
+            lam = np.linalg.eigvalsh(-0.5 * (J + J.T))
+            assert lam.min() >= -1e-10 * max(np.abs(lam).max(), 1.0)
+
+
+@pytest.mark.parametrize("mode", JACOBIAN_MODES)
+@pytest.mark.parametrize("name", TERMS)
+def test_block_shapes_and_layouts(name, mode):
+    """Jacobian blocks are (k, 3, 3) on the term's constant layout, or None exactly where it has no layout."""
+    rng = np.random.default_rng(733)
+    model = random_scene(rng)
+    term = _term(name, model)
+    q, qd = _perturbed(model, rng)
+    for blocks, layout in zip(term.eval_jacobians(q, qd, mode), (term.layout_q, term.layout_qd)):
+        if layout is None:
+            assert blocks is None
+            continue
+        assert blocks.layout is layout
+        assert blocks.values.shape == (layout.value_count, 3, 3)
+        k = layout.rows.shape[0]
+        assert layout.cols.shape == layout.src.shape == layout.sign.shape == (k,)
+        assert blocks.blocks.shape == (k, 3, 3)
+        assert np.all(np.isfinite(blocks.values))
+        n = model.particle_count
+        assert layout.rows.min() >= 0 and layout.rows.max() < n and layout.cols.max() < n
+
+
+@pytest.mark.parametrize("name", TERMS)
+def test_no_dependence_where_no_layout(name):
+    """A term without a q (qd) layout has a force independent of q (qd)."""
+    rng = np.random.default_rng(734)
+    model = random_scene(rng)
+    term = _term(name, model)
+    q, qd = _perturbed(model, rng)
+    f0 = eval_forces([term], q, qd)
+    q2, qd2 = _perturbed(model, rng)
+    if term.layout_q is None:
+        assert np.array_equal(eval_forces([term], q2, qd), f0)
+    if term.layout_qd is None:
+        assert np.array_equal(eval_forces([term], q, qd2), f0)
+
+
+@pytest.mark.parametrize("name", TERMS)
+def test_forces_finite_and_accumulated(name):
+    """``eval_force`` accumulates into ``f_out`` (adds, never overwrites) and gives finite values."""
+    rng = np.random.default_rng(735)
+    model = random_scene(rng)
+    term = _term(name, model)
+    q, qd = _perturbed(model, rng)
+    base = rng.normal(size=q.shape)
+    out = base.copy()
+    term.eval_force(q, qd, out)
+    alone = np.zeros_like(q)
+    term.eval_force(q, qd, alone)
+    assert np.all(np.isfinite(alone))
+    np.testing.assert_allclose(out, base + alone, rtol=0, atol=1e-12 * max(1.0, np.abs(alone).max()))
+
+
+# -- the seed's two-particle cases -----------------------------------------------------------
+SEED_CASES = {
+    "spring_only": dict(ke=40.0),
+    "damping_only": dict(kd=1.5),
+    "spring_and_damping": dict(ke=40.0, kd=1.5),
+    "gravitational": dict(G=2.0),
+    "drag": dict(drag=0.8),
+    "everything": dict(ke=40.0, kd=1.5, G=2.0, drag=0.8, gravity=-9.81),
+}
+
+
+@pytest.mark.parametrize("rest_length", [0.0, 0.7, 1.5], ids=["l0_zero", "stretched", "compressed"])
+@pytest.mark.parametrize("case", sorted(SEED_CASES))
+def test_two_particle_seed_cases(case, rest_length):
+    """Two-particle seed cases: exact Jacobians equal finite differences (rel. error <= 1e-6)."""
+    from helpers import two_particle_scene
+    from springsim.forces import make_force_terms
+
+    model = two_particle_scene(rest_length=rest_length, **SEED_CASES[case])
+    terms = make_force_terms(model)
+    q, qd = model.particle_q.copy(), model.particle_qd.copy()
+    jq, jqd = dense_jacobians(terms, q, qd, "exact")
+    fq, fqd = fd_jacobians(terms, q, qd)
+    for J, F in ((jq, fq), (jqd, fqd)):
+        if np.linalg.norm(F) == 0.0:
+            assert np.linalg.norm(J) == 0.0
+        else:
+            assert rel_err(J, F) <= FD_RTOL
