@@ -3,7 +3,11 @@
 After every step the new state is checked for NaN/inf; on blow-up
 :func:`simulate` raises :class:`~springsim.errors.SimulationError` naming the step
 and the first offending particle, carrying the finite frames computed before it
-(``err.trajectory``). Ctrl-C does the same with :class:`SimulationInterrupted`.
+(``err.trajectory``). Any other :class:`~springsim.errors.SpringsimError` raised by
+the integrator mid-run (a failed linear solve, Newton with ``on_nonconvergence="raise"``)
+becomes a ``SimulationError`` with the frames so far and the original as ``__cause__``.
+Ctrl-C does the same with :class:`SimulationInterrupted`. :func:`save_npz_atomic`
+never leaves a partial file at the target path. See ``docs/robustness.md``.
 """
 
 from __future__ import annotations
@@ -15,7 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import SimulationError
+from .errors import SimulationError, SpringsimError
 from .integrators import Integrator, StepStats
 
 __all__ = ["Trajectory", "simulate", "SimulationInterrupted", "save_npz_atomic"]
@@ -74,13 +78,28 @@ class Trajectory:
 
 
 def save_npz_atomic(path, **arrays) -> None:
-    """``np.savez`` to a temporary file in the target directory, then ``os.replace``."""
+    """Write ``arrays`` to the ``.npz`` file ``path`` atomically.
+
+    ``np.savez`` writes to a temporary file in the target directory, which is
+    flushed, fsync'ed and then renamed over ``path`` (``os.replace``, atomic on POSIX
+    and Windows). On any failure (including KeyboardInterrupt) the temporary file is
+    removed and ``path`` is left as it was: never a partial file.
+
+    Parameters
+    ----------
+    path : str or PathLike
+        Target file, used exactly as given (no ``.npz`` is appended).
+    **arrays : ndarray
+        Named arrays, as for ``np.savez``.
+    """
     path = os.fspath(path)
     d = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(suffix=".npz", dir=d)
+    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".npz", dir=d)
     try:
         with os.fdopen(fd, "wb") as fh:
             np.savez(fh, **arrays)
+            fh.flush()
+            os.fsync(fh.fileno())
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
@@ -113,47 +132,72 @@ def simulate(model, integrator: Integrator, dt: float, steps: int, *, state=None
     ------
     SimulationError
         On NaN/inf (blow-up); ``err.trajectory`` has the finite frames before it.
+        Also wraps any other :class:`~springsim.errors.SpringsimError` the integrator
+        raises mid-run (e.g. ``SolverError``), kept as ``__cause__``.
     SimulationInterrupted
-        On KeyboardInterrupt, with the frames so far.
+        On KeyboardInterrupt (also from ``progress``), with the frames so far.
     """
     if not (dt > 0 and np.isfinite(dt)):
         raise ValueError(f"dt must be finite and > 0, got {dt}")
     if steps < 0:
         raise ValueError(f"steps must be >= 0, got {steps}")
+    if int(frame_every) != frame_every or frame_every < 1:
+        raise ValueError(f"frame_every must be an integer >= 1, got {frame_every}")
     s0 = model.state() if state is None else state.copy()
+    if not s0.is_finite():
+        raise ValueError("the initial state holds NaN or inf")
     s1 = s0.copy()
     ts, qs, qds = [0.0], [s0.particle_q.copy()], [s0.particle_qd.copy()]
     stats: list[StepStats] = []
     t0 = time.perf_counter()
+    done = 0  # steps completed; s0 holds the (finite) state after them
+    recorded = 0  # step of the last recorded frame
 
     def trajectory():
         return Trajectory(np.array(ts), np.array(qs), np.array(qds), stats, time.perf_counter() - t0)
 
+    def keep_last():
+        # on an early stop, also keep the last finite state when frame_every/record skipped it
+        if recorded != done:
+            ts.append(done * dt)
+            qs.append(s0.particle_q.copy())
+            qds.append(s0.particle_qd.copy())
+        return trajectory()
+
+    def kept():
+        return f"kept {len(ts) + (recorded != done)} finite frame(s) up to t={done * dt:g} s"
+
     k = 0
     try:
         for k in range(1, steps + 1):
-            st = integrator.step(s0, s1, dt)
+            with np.errstate(over="ignore", invalid="ignore"):  # a blow-up is reported below, once
+                st = integrator.step(s0, s1, dt)
             stats.append(st)
             if not s1.is_finite():
                 bad = ~(np.isfinite(s1.particle_q).all(axis=1) & np.isfinite(s1.particle_qd).all(axis=1))
                 p = int(np.flatnonzero(bad)[0])
-                raise SimulationError(
-                    f"simulation blew up at step {k} (t={k * dt:g} s): particle {p} has a non-finite "
-                    f"position or velocity; kept {len(ts)} finite frame(s) up to t={ts[-1]:g} s",
-                    trajectory(), step=k)
+                msg = (f"simulation blew up at step {k} (t={k * dt:g} s): particle {p} has a non-finite "
+                       f"position or velocity ({int(bad.sum())} particle(s) affected); {kept()}; "
+                       f"try a smaller time step or an implicit integrator")
+                raise SimulationError(msg, keep_last(), step=k)
             s0, s1 = s1, s0
+            done = k
             if record and (k % frame_every == 0 or k == steps) or (not record and k == steps):
                 ts.append(k * dt)
                 qs.append(s0.particle_q.copy())
                 qds.append(s0.particle_qd.copy())
+                recorded = k
             if progress is not None:
                 progress(k, steps)
     except KeyboardInterrupt:
-        raise SimulationInterrupted(f"interrupted at step {k}; kept {len(ts)} frame(s) up to t={ts[-1]:g} s",
-                                    trajectory(), step=k) from None
+        msg = f"interrupted after step {done} of {steps}; {kept()}"
+        raise SimulationInterrupted(msg, keep_last(), step=done) from None
     except SimulationError as e:
         if e.trajectory is None:
-            e.trajectory = trajectory()
+            e.trajectory = keep_last()
             e.step = k
         raise
+    except SpringsimError as e:
+        msg = f"simulation stopped at step {k} (t={k * dt:g} s): {type(e).__name__}: {e}; {kept()}"
+        raise SimulationError(msg, keep_last(), step=k) from e
     return trajectory()

@@ -85,7 +85,9 @@ class Integrator(ABC):
     def acceleration(self, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
         """``M^-1 F(q, qd)``, zero for fixed particles, shape (N, 3)."""
         eval_forces(self.terms, q, qd, out=self._f)
-        return self._f * self._inv_mass
+        a = self._f * self._inv_mass
+        a[self.fixed] = 0.0  # not inf * 0 = NaN when a force overflows on a fixed particle
+        return a
 
     @abstractmethod
     def step(self, state_in, state_out, dt: float) -> StepStats:

@@ -1,0 +1,208 @@
+"""The simulation driver: blow-up detection, wrapped solver errors, interrupts, atomic ``.npz`` writes."""
+
+import os
+
+import numpy as np
+import pytest
+
+from springsim.builder import ModelBuilder
+from springsim.driver import SimulationInterrupted, Trajectory, save_npz_atomic, simulate
+from springsim.errors import SimulationError, SolverError, SpringsimError
+from springsim.integrators import Integrator, StepStats, make_integrator
+
+
+def _stiff_spring(ke=1e8):
+    """One free particle (index 1) on a very stiff spring to a fixed particle (index 0)."""
+    b = ModelBuilder(gravity=0.0)
+    b.add_particle((0.0, 0.0, 0.0), mass=1.0, fixed=True)
+    b.add_particle((1.001, 0.0, 0.0), vel=(0.0, 0.5, 0.0), mass=1.0)
+    b.add_spring(0, 1, ke, 0.0, 1.0)
+    return b.finalize()
+
+
+def _chain(n=4, seed=5):
+    """A small hanging chain with random initial velocities."""
+    rng = np.random.default_rng(seed)
+    b = ModelBuilder()
+    pos = np.column_stack([np.arange(n) * 0.1, np.zeros(n), np.zeros(n)])
+    b.add_particles(pos, rng.normal(size=(n, 3)) * 0.1, 0.1, fixed=np.arange(n) == 0)
+    b.add_springs(np.column_stack([np.arange(n - 1), np.arange(1, n)]), 100.0, 0.1)
+    return b.finalize()
+
+
+class _FailAt(Integrator):
+    """Symplectic-Euler-like stepper that raises ``exc`` at step ``at`` (1-based)."""
+
+    name = "fail_at"
+
+    def __init__(self, model, at, exc):
+        super().__init__(model)
+        self.at, self.exc, self.calls = at, exc, 0
+
+    def step(self, state_in, state_out, dt):
+        self.calls += 1
+        if self.calls == self.at:
+            raise self.exc
+        qd = state_in.particle_qd + dt * self.acceleration(state_in.particle_q, state_in.particle_qd)
+        state_out.particle_qd[...] = qd
+        state_out.particle_q[...] = state_in.particle_q + dt * qd
+        return StepStats(dt)
+
+
+def test_blowup_raises_with_finite_frames():
+    """Explicit Euler on a 1e8 N/m spring at h = 0.1 s blows up; the error names step and particle, frames stay finite."""
+    m = _stiff_spring()
+    with pytest.raises(SimulationError) as ei:
+        simulate(m, make_integrator("explicit_euler", m), 0.1, 500)
+    e = ei.value
+    assert e.step is not None and 1 < e.step < 500
+    assert f"step {e.step}" in str(e) and "particle 1" in str(e)
+    tr = e.trajectory
+    assert isinstance(tr, Trajectory)
+    assert tr.frame_count == e.step  # frames 0 .. step-1
+    assert np.isfinite(tr.q).all() and np.isfinite(tr.qd).all()
+    np.testing.assert_allclose(tr.t, np.arange(e.step) * 0.1)
+    assert len(tr.stats) == e.step
+    assert np.all(tr.q[:, 0] == 0.0)  # the fixed particle never moved, even as forces overflowed
+
+
+def test_blowup_keeps_last_finite_state_between_frames():
+    """With frame_every > 1 the last finite state before the blow-up is still kept."""
+    m = _stiff_spring()
+    with pytest.raises(SimulationError) as ei:
+        simulate(m, make_integrator("symplectic_euler", m), 0.1, 500, frame_every=7)
+    tr, k = ei.value.trajectory, ei.value.step
+    assert tr.t[-1] == pytest.approx((k - 1) * 0.1)
+    assert np.isfinite(tr.q).all() and np.isfinite(tr.qd).all()
+    assert tr.t.shape[0] == tr.q.shape[0] == tr.qd.shape[0]
+
+
+def test_blowup_record_false_keeps_initial_and_last_finite():
+    """With record=False a blow-up returns the initial and the last finite state."""
+    m = _stiff_spring()
+    with pytest.raises(SimulationError) as ei:
+        simulate(m, make_integrator("midpoint", m), 0.1, 500, record=False)
+    tr, k = ei.value.trajectory, ei.value.step
+    np.testing.assert_allclose(tr.t, [0.0, (k - 1) * 0.1])
+    assert np.isfinite(tr.q).all()
+
+
+@pytest.mark.parametrize("exc", [SolverError("linear solver 'x' failed: singular matrix"),
+                                 SpringsimError("something springsim-specific")])
+def test_springsim_error_mid_run_becomes_simulation_error(exc):
+    """A SolverError (or any SpringsimError) at step 4 becomes a SimulationError with 4 frames and the cause."""
+    m = _chain()
+    integ = _FailAt(m, 4, exc)
+    with pytest.raises(SimulationError) as ei:
+        simulate(m, integ, 0.01, 10)
+    e = ei.value
+    assert e.__cause__ is exc
+    assert e.step == 4 and "step 4" in str(e) and str(exc) in str(e)
+    np.testing.assert_allclose(e.trajectory.t, [0.0, 0.01, 0.02, 0.03])
+    assert len(e.trajectory.stats) == 3
+
+
+def test_newton_raise_mid_run_is_wrapped():
+    """implicit_euler with on_nonconvergence='raise' on a stiff cloth stops with SimulationError caused by SolverError."""
+    b = ModelBuilder()
+    b.add_cloth_grid(5, 5, ke=1e7, pin="edge")
+    m = b.finalize()
+    integ = make_integrator("implicit_euler", m, on_nonconvergence="raise", newton_maxiter=1)
+    with pytest.raises(SimulationError) as ei:
+        simulate(m, integ, 1.0 / 30, 5)
+    assert isinstance(ei.value.__cause__, SolverError)
+    assert np.isfinite(ei.value.trajectory.q).all()
+
+
+def test_interrupt_from_progress_returns_frames_so_far():
+    """KeyboardInterrupt from the progress callback gives SimulationInterrupted with the frames so far."""
+    m = _chain()
+
+    def progress(k, n):
+        if k == 6:
+            raise KeyboardInterrupt
+
+    with pytest.raises(SimulationInterrupted) as ei:
+        simulate(m, make_integrator("symplectic_euler", m), 0.01, 20, frame_every=4, progress=progress)
+    e = ei.value
+    assert isinstance(e, SimulationError) and e.step == 6
+    np.testing.assert_allclose(e.trajectory.t, [0.0, 0.04, 0.06])
+    assert "interrupted after step 6 of 20" in str(e)
+    ref = simulate(m, make_integrator("symplectic_euler", m), 0.01, 6)
+    np.testing.assert_array_equal(e.trajectory.q[-1], ref.q[-1])
+
+
+def test_interrupt_inside_step_keeps_previous_frames():
+    """KeyboardInterrupt raised inside an integrator step keeps every completed step."""
+    m = _chain()
+    with pytest.raises(SimulationInterrupted) as ei:
+        simulate(m, _FailAt(m, 3, KeyboardInterrupt()), 0.01, 10)
+    np.testing.assert_allclose(ei.value.trajectory.t, [0.0, 0.01, 0.02])
+
+
+def test_driver_argument_validation():
+    """Bad dt, steps, frame_every or a non-finite initial state are rejected before stepping."""
+    m = _chain()
+    integ = make_integrator("symplectic_euler", m)
+    for kw in (dict(dt=0.0, steps=1), dict(dt=np.nan, steps=1), dict(dt=0.1, steps=-1),
+               dict(dt=0.1, steps=1, frame_every=0), dict(dt=0.1, steps=1, frame_every=1.5)):
+        with pytest.raises(ValueError):
+            simulate(m, integ, **kw)
+    s = m.state()
+    s.particle_q[2, 1] = np.inf
+    with pytest.raises(ValueError):
+        simulate(m, integ, 0.1, 1, state=s)
+
+
+def test_zero_steps_returns_initial_frame():
+    """steps = 0 returns just the initial state."""
+    m = _chain()
+    tr = simulate(m, make_integrator("implicit_euler", m), 0.01, 0)
+    assert tr.frame_count == 1 and tr.summary()["steps"] == 0
+    np.testing.assert_array_equal(tr.q[0], m.particle_q)
+
+
+def test_save_roundtrip(tmp_path):
+    """Trajectory.save writes t, q, qd exactly, at the exact path, with no leftover temporary file."""
+    m = _chain()
+    tr = simulate(m, make_integrator("implicit_euler", m), 0.01, 5)
+    out = tmp_path / "run.npz"
+    tr.save(out)
+    with np.load(out) as z:
+        np.testing.assert_array_equal(z["t"], tr.t)
+        np.testing.assert_array_equal(z["q"], tr.q)
+        np.testing.assert_array_equal(z["qd"], tr.qd)
+    assert sorted(os.listdir(tmp_path)) == ["run.npz"]
+
+
+@pytest.mark.parametrize("exc", [OSError("disk full"), KeyboardInterrupt()])
+def test_atomic_write_failure_leaves_no_partial_file(tmp_path, monkeypatch, exc):
+    """A failure half-way through writing leaves no target file and no temporary file."""
+    real = np.savez
+
+    def broken(fh, **arrays):
+        real(fh, **arrays)  # bytes reach the temporary file ...
+        raise exc  # ... then the write fails
+
+    monkeypatch.setattr(np, "savez", broken)
+    out = tmp_path / "out.npz"
+    with pytest.raises(type(exc)):
+        save_npz_atomic(out, q=np.ones((3, 2, 3)))
+    assert os.listdir(tmp_path) == []
+
+
+def test_atomic_write_failure_keeps_previous_file(tmp_path, monkeypatch):
+    """A failed overwrite leaves the previous complete file untouched."""
+    out = tmp_path / "out.npz"
+    save_npz_atomic(out, q=np.arange(6.0))
+    before = out.read_bytes()
+
+    def broken(fh, **arrays):
+        fh.write(b"PK\x03\x04 partial")
+        raise OSError("disk full")
+
+    monkeypatch.setattr(np, "savez", broken)
+    with pytest.raises(OSError):
+        save_npz_atomic(out, q=np.zeros(6))
+    assert out.read_bytes() == before
+    assert os.listdir(tmp_path) == ["out.npz"]
