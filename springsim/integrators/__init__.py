@@ -10,10 +10,13 @@ from .implicit_euler import IntegratorImplicitEuler
 from .linearized_implicit import IntegratorLinearizedImplicit
 from .midpoint import IntegratorMidpoint
 from .symplectic_euler import IntegratorSymplecticEuler
+from .bdf2 import IntegratorBDF2
+from .tr_bdf2 import IntegratorTRBDF2
 
 __all__ = ["INTEGRATORS", "Integrator", "ImplicitIntegrator", "StepStats", "NewtonConvergenceWarning",
            "IntegratorExplicitEuler", "IntegratorSymplecticEuler", "IntegratorMidpoint",
-           "IntegratorLinearizedImplicit", "IntegratorImplicitEuler", "make_integrator"]
+           "IntegratorLinearizedImplicit", "IntegratorImplicitEuler", "IntegratorBDF2", "IntegratorTRBDF2",
+           "make_integrator"]
 
 #: Registry: YAML/CLI name -> class.
 INTEGRATORS: dict[str, type[Integrator]] = {
@@ -22,6 +25,8 @@ INTEGRATORS: dict[str, type[Integrator]] = {
     "midpoint": IntegratorMidpoint,
     "linearized_implicit": IntegratorLinearizedImplicit,
     "implicit_euler": IntegratorImplicitEuler,
+    "bdf2": IntegratorBDF2,
+    "tr_bdf2": IntegratorTRBDF2,
 }
 
 

@@ -1,0 +1,94 @@
+"""TR-BDF2 (Bank et al. 1985; Hosea and Shampine 1996), gamma = 2 - sqrt(2), solved by Newton.
+
+One step of size ``h`` is a trapezoidal stage to ``t_n + gamma h`` followed by a BDF2
+stage over the nodes ``t_n``, ``t_n + gamma h``, ``t_{n+1}``. Both fit the Newton stage
+``q = q_hat + c v``, ``M (v - v_hat) = c F(q_hat + c v, v)`` of
+:class:`~springsim.integrators.ImplicitIntegrator` (``a = M^-1 F``):
+
+* trapezoidal stage, ``q_g = q_n + (gamma h/2)(v_n + v_g)``, ``v_g = v_n + (gamma h/2)(a_n + a_g)``::
+
+      c = gamma h / 2,   q_hat = q_n + c v_n,   v_hat = v_n + c a_n
+
+* BDF2 stage, ``y_{n+1} = (y_g - (1 - gamma)^2 y_n) / (gamma (2 - gamma)) + c f_{n+1}``::
+
+      c = h (1 - gamma) / (2 - gamma),   q_hat = (q_g - (1-gamma)^2 q_n) / (gamma (2-gamma)),  same for v_hat
+
+With ``gamma = 2 - sqrt(2)`` both stages have ``c = (1 - 1/sqrt(2)) h ~ 0.293 h``, so they
+share the system matrix ``M - c^2 dF/dq - c dF/dqd``. The method is one-step (no history),
+second order, L-stable, and much less damped than BDF2 at animation steps; the trapezoidal
+rule alone conserves energy on linear problems but is not L-stable (stiff cloth modes ring).
+
+Each step costs one extra force evaluation for ``a_n``; ``a_g`` and ``a_{n+1}`` come from
+the stages as ``(v - v_hat) / c``. Newton starts each stage from the linear extrapolation
+``v_n + (t - t_n) a_n`` and stops as implicit Euler does, per stage.
+
+Local error estimate (Hosea and Shampine 1996, eq. for TR-BDF2's embedded pair)::
+
+    err = -2 k h (f_n / gamma - f_g / (gamma (1 - gamma)) + f_{n+1} / (1 - gamma))
+    k = (-3 gamma^2 + 4 gamma - 2) / (12 (2 - gamma))
+
+with ``f = qd`` for positions and ``f = a`` for velocities; the bracket is ``h^2/2`` times
+the second derivative of ``f``, so ``err = -k h^3 y'''`` (sign: numerical minus exact; checked against a Radau reference).
+"""
+
+from __future__ import annotations
+
+import math
+
+from ._base import StepStats
+from ._implicit import ImplicitIntegrator
+
+__all__ = ["IntegratorTRBDF2", "GAMMA"]
+
+#: The stage fraction that makes both stage matrices equal and the method L-stable.
+GAMMA = 2.0 - math.sqrt(2.0)
+
+
+class IntegratorTRBDF2(ImplicitIntegrator):
+    """TR-BDF2 with ``gamma = 2 - sqrt(2)``; see the module docstring.
+
+    Parameters are those of :class:`~springsim.integrators.ImplicitIntegrator`.
+
+    Attributes
+    ----------
+    error_estimate : tuple of ndarray (N, 3) or None
+        Local error estimate ``(err_q [m], err_v [m/s])`` of the last step.
+    """
+
+    name = "tr_bdf2"
+    order = 2
+
+    def __init__(self, model, **options):
+        super().__init__(model, **options)
+        self.error_estimate = None
+
+    def reset(self):
+        super().reset()
+        self.error_estimate = None
+
+    def step(self, state_in, state_out, dt):
+        stats = StepStats(dt)
+        h = float(dt)
+        g = GAMMA
+        q, v = state_in.particle_q, state_in.particle_qd
+        a_n = self.acceleration(q, v).copy()
+        # trapezoidal stage to t_n + gamma h
+        c1 = 0.5 * g * h
+        v_hat1 = v + c1 * a_n
+        q_g, v_g = self.solve_stage(q + c1 * v, v_hat1, c1, v + (g * h) * a_n, stats)
+        a_g = (v_g - v_hat1) / c1
+        # BDF2 stage over t_n, t_n + gamma h, t_n + h
+        c2 = h * (1.0 - g) / (2.0 - g)
+        s, r = 1.0 / (g * (2.0 - g)), (1.0 - g) ** 2 / (g * (2.0 - g))
+        v_hat2 = s * v_g - r * v
+        q1, v1 = self.solve_stage(s * q_g - r * q, v_hat2, c2, v + h * a_n, stats)
+        a1 = (v1 - v_hat2) / c2
+        a1[self.fixed] = 0.0
+        a_g[self.fixed] = 0.0
+        k = (-3.0 * g * g + 4.0 * g - 2.0) / (12.0 * (2.0 - g))
+        w0, wg, w1 = 2.0 * k * h / g, -2.0 * k * h / (g * (1.0 - g)), 2.0 * k * h / (1.0 - g)
+        # sign: the estimate approximates (numerical - exact)
+        self.error_estimate = (-(w0 * v + wg * v_g + w1 * v1), -(w0 * a_n + wg * a_g + w1 * a1))
+        state_out.particle_q[...] = q1
+        state_out.particle_qd[...] = v1
+        return stats
