@@ -16,7 +16,8 @@ __all__ = ["random_scene", "two_particle_scene", "fd_jacobians", "rel_err"]
 
 def random_scene(rng, n: int = 8, *, springs: int = 12, damping: bool = True, gravitational: int = 3,
                  drag: bool = True, fixed: int = 2, gravity: float = -9.81, ke=(20.0, 200.0),
-                 fixed_pairs: bool = True, duplicate: bool = True, pair_epsilon: float = 1e-9):
+                 fixed_pairs: bool = True, duplicate: bool = True, pair_epsilon: float = 1e-9,
+                 G=(0.5, 2.0), speed: float = 1.0):
     """A small random scene exercising every force term.
 
     Parameters
@@ -28,7 +29,7 @@ def random_scene(rng, n: int = 8, *, springs: int = 12, damping: bool = True, gr
         Random springs; about half damped when ``damping``; rest lengths mix "initial
         distance" (None) and random values.
     gravitational : int
-        Random gravitational pairs (G in [0.5, 2]).
+        Random gravitational pairs with G uniform in the range ``G`` [N m^2/kg^2].
     drag : bool
         Give about half the particles a drag coefficient.
     fixed : int
@@ -39,6 +40,8 @@ def random_scene(rng, n: int = 8, *, springs: int = 12, damping: bool = True, gr
         Repeat the first spring (duplicates must sum).
     ke : (float, float)
         Stiffness range [N/m].
+    speed : float
+        Initial velocities are uniform in [-speed, speed] [m/s].
 
     Returns
     -------
@@ -49,7 +52,7 @@ def random_scene(rng, n: int = 8, *, springs: int = 12, damping: bool = True, gr
     side = int(np.ceil(n ** (1 / 3)))
     grid = np.stack(np.meshgrid(*[np.arange(side)] * 3, indexing="ij"), -1).reshape(-1, 3)[:n]
     pos = 0.7 * grid + rng.uniform(-0.15, 0.15, (n, 3))
-    vel = rng.uniform(-1.0, 1.0, (n, 3))
+    vel = rng.uniform(-speed, speed, (n, 3))
     mass = rng.uniform(0.5, 2.0, n)
     beta = np.where(rng.random(n) < 0.5, rng.uniform(0.1, 1.0, n), 0.0) if drag else 0.0
     is_fixed = np.zeros(n, dtype=bool)
@@ -70,7 +73,7 @@ def random_scene(rng, n: int = 8, *, springs: int = 12, damping: bool = True, gr
         if duplicate:
             b.add_springs(ij[:1], rng.uniform(*ke), kd if np.ndim(kd) == 0 else kd[:1])
     if gravitational:
-        b.add_gravitationals(pairs(gravitational), rng.uniform(0.5, 2.0, gravitational))
+        b.add_gravitationals(pairs(gravitational), rng.uniform(*G, gravitational))
     if fixed_pairs and fixed >= 2:
         f = np.flatnonzero(is_fixed)[:2]
         b.add_spring(int(f[0]), int(f[1]), ke=50.0, kd=0.5 if damping else 0.0)
