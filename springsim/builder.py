@@ -45,15 +45,20 @@ def _as_column(name: str, value, count: int, dtype=np.float64) -> np.ndarray:
 
 
 def _as_pairs(name: str, value) -> np.ndarray:
-    a = np.asarray(value)
+    try:
+        a = np.asarray(value)
+    except (TypeError, ValueError):  # ragged nested lists
+        raise SceneError(name, f"must have shape (n, 2), got {value!r}") from None
     if a.ndim == 1 and a.shape[0] == 2:
         a = a[None, :]
     if a.ndim != 2 or a.shape[1] != 2:
         raise SceneError(name, f"must have shape (n, 2), got {a.shape}")
     if a.size and not np.issubdtype(a.dtype, np.integer):
-        af = a.astype(np.float64)
-        if not np.all(np.isfinite(af)) or np.any(af != np.round(af)):
-            raise SceneError(name, "particle ids must be integers")
+        af = a.astype(np.float64) if a.dtype.kind == "f" else None  # not bool, str, object
+        ok = af is not None and np.isfinite(af) & (af == np.round(af))
+        if af is None or not np.all(ok):
+            bad = 0 if af is None else int(np.flatnonzero(~np.all(ok, axis=1))[0])
+            raise SceneError(name, f"particle ids must be integers, got {a[bad].tolist()}")
         a = af
     return a.astype(np.int64)
 
