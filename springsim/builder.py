@@ -48,7 +48,7 @@ def _as_pairs(name: str, value) -> np.ndarray:
     try:
         a = np.asarray(value)
     except (TypeError, ValueError):  # ragged nested lists
-        raise SceneError(name, f"must have shape (n, 2), got {value!r}") from None
+        raise SceneError(name, "must have shape (n, 2), got a ragged or non-numeric sequence") from None
     if a.ndim == 1 and a.shape[0] == 2:
         a = a[None, :]
     if a.ndim != 2 or a.shape[1] != 2:
