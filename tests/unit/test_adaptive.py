@@ -1,0 +1,120 @@
+"""Adaptive stepping: tolerance scaling, exact frame times, statistics, history reuse, input errors."""
+
+import numpy as np
+import pytest
+
+from springsim import ModelBuilder, SceneError, make_integrator, simulate
+from springsim.adaptive import hermite_frame, simulate_adaptive
+from springsim.reference import reference_trajectory
+
+
+def _oscillator():
+    """A particle on an undamped 100 N/m spring (period ~0.63 s), no gravity."""
+    b = ModelBuilder(gravity=0.0)
+    b.add_particle((0.0, 0.0, 0.0), fixed=True)
+    b.add_particle((1.3, 0.1, 0.0), vel=(0.0, 0.5, 0.0), mass=1.0)
+    b.add_spring(0, 1, ke=100.0, kd=0.0, rest_length=1.0)
+    return b.finalize()
+
+
+@pytest.fixture(scope="module")
+def oscillator_case():
+    """The oscillator and its Radau reference at t = 1 s."""
+    model = _oscillator()
+    return model, reference_trajectory(model, [0.0, 1.0]).q[-1]
+
+
+@pytest.mark.parametrize("name", ["bdf2", "tr_bdf2"])
+def test_error_scales_with_tolerance(oscillator_case, name):
+    """Tighter time tolerance gives a smaller final error and more steps."""
+    model, q_ref = oscillator_case
+    errs, steps = [], []
+    for tol in (1e-3, 1e-5, 1e-7):
+        tr = simulate_adaptive(model, name, 1.0, time_rtol=tol, time_atol=tol, newton_tol=1e-12,
+                               newton_maxiter=20)
+        errs.append(np.linalg.norm(tr.q[-1] - q_ref))
+        steps.append(tr.adaptive_stats["accepted"])
+    assert errs[0] > 10 * errs[1] > 100 * errs[2]
+    assert steps[0] < steps[1] < steps[2]
+
+
+@pytest.mark.parametrize("name", ["bdf2", "tr_bdf2"])
+def test_frames_land_at_requested_times(name):
+    """Output frames are exactly at 0 and the requested times, including one at t_end."""
+    model = _oscillator()
+    t_frames = np.array([0.013, 0.1, 0.25, 0.2501, 0.7])
+    tr = simulate_adaptive(model, name, 0.7, t_frames=t_frames, time_rtol=1e-4, time_atol=1e-5)
+    assert np.array_equal(tr.t, np.concatenate([[0.0], t_frames]))
+    assert tr.q.shape == (6, 2, 3) and tr.qd.shape == (6, 2, 3)
+    tr2 = simulate_adaptive(model, name, 1.0, frame_dt=1 / 60, time_rtol=1e-4, time_atol=1e-5)
+    assert tr2.t.size == 61 and tr2.t[-1] == 1.0
+    assert np.array_equal(tr2.t[1:-1], (1 / 60) * np.arange(1, 60))
+    # the fixed particle never moves in interpolated frames
+    assert np.array_equal(tr2.q[:, 0], np.zeros((61, 3)))
+
+
+def test_interpolated_frames_are_accurate(oscillator_case):
+    """Hermite frames between step ends are as accurate as the step ends (the last frame is one)."""
+    model = _oscillator()
+    t_frames = np.linspace(0.05, 1.0, 20)
+    ref = reference_trajectory(model, np.concatenate([[0.0], t_frames]))
+    tr = simulate_adaptive(model, "tr_bdf2", 1.0, t_frames=t_frames, time_rtol=1e-5, time_atol=1e-5,
+                           newton_tol=1e-12, newton_maxiter=20)
+    eq = np.linalg.norm(tr.q - ref.q, axis=(1, 2))
+    ev = np.linalg.norm(tr.qd - ref.qd, axis=(1, 2))
+    assert np.max(eq) <= 2.0 * eq[-1] and eq[-1] < 1e-3
+    assert np.max(ev) <= 2.0 * ev[-1] and ev[-1] < 1e-2
+
+
+def test_hermite_frame_is_exact_for_cubics():
+    """Cubic Hermite interpolation reproduces a cubic and its derivative."""
+    rng = np.random.default_rng(9157)
+    c = rng.normal(size=(4, 3, 3))
+
+    def y(t):
+        return c[0] + c[1] * t + c[2] * t**2 + c[3] * t**3
+
+    def dy(t):
+        return c[1] + 2 * c[2] * t + 3 * c[3] * t**2
+
+    q, v = hermite_frame(0.2, y(0.2), dy(0.2), 0.7, y(0.7), dy(0.7), 0.45)
+    assert np.allclose(q, y(0.45), rtol=1e-12, atol=1e-12)
+    assert np.allclose(v, dy(0.45), rtol=1e-12, atol=1e-12)
+
+
+def test_statistics_and_step_bounds():
+    """Statistics count steps and iterations; steps respect h_max; rejections are counted."""
+    model = _oscillator()
+    tr = simulate_adaptive(model, "bdf2", 1.0, time_rtol=1e-6, time_atol=1e-6, h0=0.2, h_max=0.05)
+    s = tr.adaptive_stats
+    assert s["accepted"] == len(tr.stats) > 0
+    assert s["rejected"] >= 1  # h0 = 0.2 is clipped to 0.05, still far too large for 1e-6
+    assert 0 < s["h_min"] <= s["h_mean"] <= s["h_max"] <= 0.05
+    assert s["newton_iterations"] >= s["accepted"]
+
+
+def test_bdf2_history_continues_and_retries():
+    """BDF2 uses implicit Euler only for its first step; a retry from the same input reuses the history."""
+    model = _oscillator()
+    integ = make_integrator("bdf2", model)
+    tr = simulate(model, integ, 0.01, 5)
+    assert [bool(s.extra.get("bdf2_start")) for s in tr.stats] == [True, False, False, False, False]
+    s0, s1, s2 = model.state(), model.state(), model.state()
+    integ.reset()
+    integ.step(s0, s1, 0.01)
+    integ.step(s1, s2, 0.02)
+    q_first = s2.particle_q.copy()
+    st = integ.step(s1, s2, 0.02)  # retry from the same input
+    assert not st.extra.get("bdf2_start")
+    assert np.array_equal(s2.particle_q, q_first)
+
+
+def test_invalid_input():
+    """Bad tolerances, frame times and integrators raise SceneError naming the field."""
+    model = _oscillator()
+    with pytest.raises(SceneError, match="time_rtol"):
+        simulate_adaptive(model, "bdf2", 1.0, time_rtol=0.0, time_atol=0.0)
+    with pytest.raises(SceneError, match="t_frames"):
+        simulate_adaptive(model, "bdf2", 1.0, t_frames=[0.5, 0.2])
+    with pytest.raises(SceneError, match="solver.type"):
+        simulate_adaptive(model, "implicit_euler", 1.0)
