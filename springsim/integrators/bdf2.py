@@ -128,6 +128,7 @@ class IntegratorBDF2(ImplicitIntegrator):
             q1, v1 = self.solve_stage(q_hat, v_hat, c, v_pred, stats)
             a1 = (v1 - v_hat) / c
             k = c / (c + h)
+        q1[self.fixed] = q[self.fixed]  # a1 q - a2 q_prev rounds: keep fixed particles bit-exact
         a1[self.fixed] = 0.0
         self.error_estimate = (k * (q1 - q_pred), k * (v1 - v_pred))
         self.history.record(q, v, q1, v1, h, a1, hist)

@@ -83,6 +83,7 @@ class IntegratorTRBDF2(ImplicitIntegrator):
         v_hat2 = s * v_g - r * v
         q1, v1 = self.solve_stage(s * q_g - r * q, v_hat2, c2, v + h * a_n, stats)
         a1 = (v1 - v_hat2) / c2
+        q1[self.fixed] = q[self.fixed]  # a1 q - a2 q_prev rounds: keep fixed particles bit-exact
         a1[self.fixed] = 0.0
         a_g[self.fixed] = 0.0
         k = (-3.0 * g * g + 4.0 * g - 2.0) / (12.0 * (2.0 - g))
