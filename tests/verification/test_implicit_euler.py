@@ -1,0 +1,98 @@
+"""Implicit Euler: Newton's quadratic convergence, linearized = one Newton step, first order."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from helpers import damped_chain, observed_errors
+from springsim import simulate
+from springsim.assembly import dense_system, free_dofs
+from springsim.forces import eval_forces, make_force_terms
+from springsim.integrators import StepStats, make_integrator
+
+
+def _newton_residuals(integ, model, h, iterations):
+    """Residual norms |R(v_k)| of plain Newton from v_0 = qd^n, k = 0..iterations."""
+    s = model.state()
+    free = ~model.particle_fixed
+    q, v = s.particle_q, s.particle_qd
+    f = eval_forces(integ.terms, q + h * v, v)
+    res = [np.linalg.norm((h * f)[free])]  # R(v_0) = h F(q + h v_0, v_0) - M (v_0 - v_0)
+    for k in range(1, iterations + 1):
+        st = StepStats(h)
+        integ.solve_stage(q, v, h, v, st, maxiter=k, converge=False)
+        assert st.newton_iterations == k
+        res.append(st.residual_norm)
+    return np.array(res)
+
+
+@pytest.mark.parametrize("h", [0.02, 0.05])
+def test_newton_converges_quadratically(h):
+    """Plain Newton residuals satisfy e_{k+1} <= C e_k^2 (C = 1 N^-1 s^-1) down to round-off."""
+    model = damped_chain()
+    integ = make_integrator("implicit_euler", model, solver="direct", jacobian="exact", line_search=False)
+    e = _newton_residuals(integ, model, h, 6)
+    floor = 1e-12 * e[0]
+    above = np.flatnonzero(e[:-1] > floor)
+    assert above.size >= 3
+    # e_{k+1} <= C e_k^2 for every iteration before round-off ...
+    assert np.all(e[above + 1] <= 1.0 * e[above] ** 2)
+    # ... including the asymptotic ones (a linear rate could not meet it there)
+    assert e[above].min() < 1e-4
+    assert e[-1] <= 1e-13 * e[0]
+
+
+def test_newton_step_rule_and_statistics():
+    """Full implicit Euler stops on |dv|_2 < newton_tol and reports iterations, step and residual."""
+    model = damped_chain()
+    integ = make_integrator("implicit_euler", model, solver="direct", jacobian="exact", newton_tol=1e-5)
+    s0, s1 = model.state(), model.state()
+    st = integ.step(s0, s1, 0.02)
+    assert st.newton_converged and 1 <= st.newton_iterations <= 5
+    assert st.newton_step_norm < 1e-5
+    assert st.residual_norm < 1e-8
+    assert st.linear_solves == st.newton_iterations
+
+
+def test_linearized_equals_one_newton_iteration():
+    """Linearized implicit Euler equals implicit Euler with one plain Newton iteration."""
+    model = damped_chain()
+    lin = make_integrator("linearized_implicit", model, solver="direct", jacobian="exact")
+    one = make_integrator("implicit_euler", model, solver="direct", jacobian="exact", newton_maxiter=1,
+                          line_search=False, on_nonconvergence="ignore")
+    a = simulate(model, lin, 0.02, 20)
+    b = simulate(model, one, 0.02, 20)
+    np.testing.assert_allclose(a.q, b.q, rtol=0, atol=1e-14)
+    np.testing.assert_allclose(a.qd, b.qd, rtol=0, atol=1e-14)
+
+
+@pytest.mark.parametrize("mode", ["exact", "symmetric", "spd"])
+def test_linearized_is_seed_equation_3(mode):
+    """One linearized step equals seed eqs. (3)-(4) solved densely with identity rows for fixed DOFs."""
+    model = damped_chain()
+    h = 0.03
+    q, v = model.particle_q.copy(), model.particle_qd.copy()
+    terms = make_force_terms(model, skip_fixed=False)
+    qs = q + h * v
+    rhs = h * eval_forces(terms, qs, v).reshape(-1)
+    A, r = dense_system(model, qs, v, h * h, h, rhs=rhs, mode=mode, terms=terms)
+    dv = np.linalg.solve(A, r).reshape(-1, 3)
+    v1 = v + dv
+    q1 = q + h * v1
+    integ = make_integrator("linearized_implicit", model, solver="direct", jacobian=mode)
+    s0, s1 = model.state(), model.state()
+    integ.step(s0, s1, h)
+    np.testing.assert_allclose(s1.particle_qd, v1, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(s1.particle_q, q1, rtol=1e-12, atol=1e-12)
+    assert np.all(s1.particle_q[model.particle_fixed] == q[model.particle_fixed])
+
+
+@pytest.mark.parametrize("name", ["implicit_euler", "linearized_implicit"])
+def test_implicit_euler_is_first_order(name):
+    """Halving h halves the error against a fine reference: observed order in [0.8, 1.2]."""
+    # Newton driven to 1e-10 so that only the time discretisation error remains
+    e = observed_errors(name, [0.02, 0.01, 0.005], solver="direct", jacobian="exact", newton_tol=1e-10,
+                        newton_maxiter=20)
+    orders = np.log2(e[:-1] / e[1:])
+    assert np.all((orders >= 0.8) & (orders <= 1.2)), orders
