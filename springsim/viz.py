@@ -1,0 +1,227 @@
+"""Pictures of simulations: a DoF plotted over time, rendered frames and animated GIFs.
+
+matplotlib is an optional extra (``pip install 'springsim[plot]'``) imported only
+when a function here is called; all output is written with the non-interactive
+Agg backend. Springs are drawn as line segments (one ``Line3DCollection``), a cloth
+(``model.metadata['cloth_shape'] = (nx, ny)``, particles ``j*nx + i``) as a shaded
+surface, free particles as dots and fixed ones as black squares.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from .errors import SpringsimError
+
+__all__ = ["plot_dof", "render_frame", "render_gif", "require_matplotlib", "DOF_NAMES"]
+
+#: Names accepted for a coordinate, besides 0, 1, 2.
+DOF_NAMES = {"x": 0, "y": 1, "z": 2}
+
+
+def require_matplotlib():
+    """Return ``matplotlib.pyplot`` on the Agg backend, or raise :class:`SpringsimError`."""
+    try:
+        import matplotlib
+    except ImportError:
+        raise SpringsimError("matplotlib is needed for plots and renders: pip install 'springsim[plot]'") from None
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _dof_index(dof) -> int:
+    if isinstance(dof, str):
+        if dof.lower() not in DOF_NAMES:
+            raise SpringsimError(f"plot.dof: must be x, y, z or 0, 1, 2, got {dof!r}")
+        return DOF_NAMES[dof.lower()]
+    if int(dof) != dof or not 0 <= dof <= 2:
+        raise SpringsimError(f"plot.dof: must be x, y, z or 0, 1, 2, got {dof!r}")
+    return int(dof)
+
+
+def plot_dof(traj, particle_id: int, dof, y_range=None, out_png=None, *, title: str | None = None,
+             dpi: int = 90):
+    """Plot one coordinate of one particle over time (the scene's ``plot:`` block).
+
+    Parameters
+    ----------
+    traj : Trajectory
+        Frames ``t`` (F,) [s] and ``q`` (F, N, 3) [m].
+    particle_id : int
+        Particle index, ``0 <= particle_id < N``.
+    dof : int or {"x", "y", "z"}
+        Coordinate.
+    y_range : (float, float), optional
+        Vertical axis limits [m].
+    out_png : path, optional
+        Where to write the PNG; if None the figure is returned open.
+    title : str, optional
+
+    Returns
+    -------
+    Path or matplotlib.figure.Figure
+    """
+    plt = require_matplotlib()
+    k = _dof_index(dof)
+    n = traj.q.shape[1]
+    if int(particle_id) != particle_id or not 0 <= particle_id < n:
+        raise SpringsimError(f"plot.particle: must be in [0, {n}), got {particle_id!r}")
+    fig, ax = plt.subplots(figsize=(6.0, 3.4))
+    ax.plot(traj.t, traj.q[:, int(particle_id), k], lw=1.2)
+    ax.set_xlabel("t [s]")
+    ax.set_ylabel(f"particle {int(particle_id)} {'xyz'[k]} [m]")
+    if y_range is not None:
+        ax.set_ylim(float(y_range[0]), float(y_range[1]))
+    ax.grid(True, alpha=0.3)
+    if title:
+        ax.set_title(title)
+    fig.tight_layout()
+    if out_png is None:
+        return fig
+    Path(out_png).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out_png, dpi=dpi)
+    plt.close(fig)
+    return Path(out_png)
+
+
+def _bounds(q: np.ndarray):
+    """Cube bounds (lo, hi) (3,) around all finite positions in ``q`` (..., 3), equal extents."""
+    pts = q.reshape(-1, 3)
+    pts = pts[np.all(np.isfinite(pts), axis=1)]
+    if pts.size == 0:
+        return -np.ones(3), np.ones(3)
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    c, r = 0.5 * (lo + hi), 0.5 * float(np.max(hi - lo))
+    r = r * 1.05 if r > 0 else 1.0
+    return c - r, c + r
+
+
+def _draw(ax, model, q: np.ndarray, *, show_springs: bool, show_particles: bool, surface: bool):
+    """Draw one configuration ``q`` (N, 3) into a 3D axes; returns the artists."""
+    from mpl_toolkits.mplot3d.art3d import Line3DCollection
+
+    artists = []
+    shape = model.metadata.get("cloth_shape") if isinstance(model.metadata, dict) else None
+    n = q.shape[0]
+    if surface and shape is not None and int(shape[0]) * int(shape[1]) <= n:
+        nx, ny = int(shape[0]), int(shape[1])
+        g = q[: nx * ny].reshape(ny, nx, 3)
+        artists.append(ax.plot_surface(g[..., 0], g[..., 1], g[..., 2], color="tab:orange", shade=True,
+                                       linewidth=0.2, edgecolor="0.4", alpha=0.95, antialiased=True))
+    elif show_springs and model.spring_count:
+        segs = q[model.spring_indices]
+        lc = Line3DCollection(segs, colors="tab:blue", linewidths=0.8)
+        ax.add_collection3d(lc)
+        artists.append(lc)
+    if show_particles:
+        fixed = np.asarray(model.particle_fixed, dtype=bool)
+        if n <= 2000:
+            free = ~fixed
+            artists.append(ax.scatter(q[free, 0], q[free, 1], q[free, 2], s=8, c="tab:red", depthshade=False))
+        if fixed.any():
+            artists.append(ax.scatter(q[fixed, 0], q[fixed, 1], q[fixed, 2], s=14, c="k", marker="s",
+                                      depthshade=False))
+    return artists
+
+
+def _axes(plt, lo, hi, size):
+    fig = plt.figure(figsize=size)
+    ax = fig.add_subplot(projection="3d")
+    ax.set_xlim(lo[0], hi[0])
+    ax.set_ylim(lo[1], hi[1])
+    ax.set_zlim(lo[2], hi[2])
+    ax.set_box_aspect((1, 1, 1))
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_zlabel("z [m]")
+    return fig, ax
+
+
+def render_frame(model, q: np.ndarray, out_png, *, title: str | None = None, bounds=None,
+                 show_springs: bool = True, show_particles: bool = True, surface: bool = True,
+                 elev: float = 20.0, azim: float = -60.0, size=(5.0, 5.0), dpi: int = 80):
+    """Render one configuration of ``model`` to a PNG.
+
+    Parameters
+    ----------
+    model : Model
+    q : ndarray (N, 3)
+        Particle positions [m].
+    out_png : path
+    title : str, optional
+    bounds : (lo, hi), optional
+        Axis limits, each (3,) [m]; default a cube around ``q``.
+    show_springs, show_particles, surface : bool
+        What to draw (a cloth is drawn as a surface instead of its springs when ``surface``).
+    elev, azim : float
+        View angles [deg].
+    size : (float, float)
+        Figure size [in]; with ``dpi`` it sets the image size.
+
+    Returns
+    -------
+    Path
+    """
+    plt = require_matplotlib()
+    q = np.asarray(q, dtype=np.float64)
+    if q.shape != (model.particle_count, 3):
+        raise SpringsimError(f"render: positions must have shape ({model.particle_count}, 3), got {q.shape}")
+    lo, hi = _bounds(q) if bounds is None else (np.asarray(bounds[0]), np.asarray(bounds[1]))
+    fig, ax = _axes(plt, lo, hi, size)
+    ax.view_init(elev=elev, azim=azim)
+    _draw(ax, model, q, show_springs=show_springs, show_particles=show_particles, surface=surface)
+    if title:
+        ax.set_title(title)
+    fig.tight_layout()
+    Path(out_png).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out_png, dpi=dpi)
+    plt.close(fig)
+    return Path(out_png)
+
+
+def render_gif(model, traj, out_gif, *, every: int = 1, fps: int = 20, show_springs: bool = True,
+               show_particles: bool = True, surface: bool = True, elev: float = 20.0, azim: float = -60.0,
+               size=(4.0, 4.0), dpi: int = 60):
+    """Animated GIF of every ``every``-th frame of ``traj`` (matplotlib's PillowWriter).
+
+    Parameters
+    ----------
+    model : Model
+    traj : Trajectory
+        Frames ``t`` (F,) [s], ``q`` (F, N, 3) [m].
+    out_gif : path
+    every : int
+        Frame stride (>= 1).
+    fps : int
+        Frames per second of the animation.
+
+    Returns
+    -------
+    Path
+    """
+    plt = require_matplotlib()
+    from matplotlib.animation import PillowWriter
+
+    if int(every) != every or every < 1:
+        raise SpringsimError(f"render.every: must be an integer >= 1, got {every!r}")
+    frames = list(range(0, traj.q.shape[0], int(every)))
+    if frames[-1] != traj.q.shape[0] - 1:
+        frames.append(traj.q.shape[0] - 1)
+    lo, hi = _bounds(traj.q[frames])
+    fig, ax = _axes(plt, lo, hi, size)
+    Path(out_gif).parent.mkdir(parents=True, exist_ok=True)
+    writer = PillowWriter(fps=fps)
+    with writer.saving(fig, str(out_gif), dpi):
+        for k in frames:
+            for coll in list(ax.collections):
+                coll.remove()
+            ax.view_init(elev=elev, azim=azim)
+            _draw(ax, model, traj.q[k], show_springs=show_springs, show_particles=show_particles, surface=surface)
+            ax.set_title(f"t = {traj.t[k]:.3f} s")
+            writer.grab_frame()
+    plt.close(fig)
+    return Path(out_gif)
