@@ -190,3 +190,33 @@ def test_gather_scatter_roundtrip():
     asm.scatter_add(y, g, 2.0)
     np.testing.assert_array_equal(y[~model.particle_fixed], 2 * x[~model.particle_fixed])
     assert np.all(y[model.particle_fixed] == 0)
+
+
+@pytest.mark.parametrize("damping", [True, False], ids=["damped", "undamped"])
+@pytest.mark.parametrize("mode", JACOBIAN_MODES)
+def test_symmetric_flag_is_truthful(mode, damping):
+    """``SystemMatrix.symmetric`` is True exactly when the assembled matrix is symmetric."""
+    rng = np.random.default_rng(920)
+    model = random_scene(rng, damping=damping)
+    A = _assembler(model).assemble(*_state(model, rng), 1e-4, 1e-2, mode)
+    D = A.toarray()
+    is_sym = np.abs(D - D.T).max() <= 1e-14 * np.abs(D).max()
+    assert A.symmetric == is_sym
+    assert A.symmetric == (mode != "exact" or not damping)
+
+
+def test_spd_mode_is_positive_definite():
+    """In ``spd`` mode the assembled system is symmetric positive definite (Cholesky succeeds) at any h."""
+    rng = np.random.default_rng(921)
+    for h in (1e-3, 0.1, 10.0):
+        model = random_scene(rng)
+        A = _assembler(model).assemble(*_state(model, rng, scale=0.3), h * h, h, "spd").toarray()
+        np.linalg.cholesky(A)
+
+
+def test_mass_only_system():
+    """Without Jacobians (a = b = 0) the system is the free particles' mass matrix."""
+    rng = np.random.default_rng(922)
+    model = random_scene(rng)
+    A = _assembler(model).assemble(*_state(model, rng), 0.0, 0.0).toarray()
+    np.testing.assert_array_equal(A, np.diag(np.repeat(model.particle_mass[~model.particle_fixed], 3)))

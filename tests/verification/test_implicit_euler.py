@@ -96,3 +96,20 @@ def test_implicit_euler_is_first_order(name):
                         newton_maxiter=20)
     orders = np.log2(e[:-1] / e[1:])
     assert np.all((orders >= 0.8) & (orders <= 1.2)), orders
+
+
+def test_nonconvergence_is_reported():
+    """Newton stopping at its limit warns (default) or raises (on_nonconvergence='raise'), never silently."""
+    from springsim.errors import SolverError
+    from springsim.integrators import NewtonConvergenceWarning
+
+    model = damped_chain()
+    s0, s1 = model.state(), model.state()
+    integ = make_integrator("implicit_euler", model, solver="direct", newton_tol=1e-14, newton_maxiter=1)
+    with pytest.warns(NewtonConvergenceWarning):
+        st = integ.step(s0, s1, 0.05)
+    assert not st.newton_converged and st.newton_iterations == 1
+    integ = make_integrator("implicit_euler", model, solver="direct", newton_tol=1e-14, newton_maxiter=1,
+                            on_nonconvergence="raise")
+    with pytest.raises(SolverError, match="did not converge"):
+        integ.step(s0, s1, 0.05)
