@@ -1,0 +1,282 @@
+"""Command-line interface: ``springsim <command> ...`` (also ``python -m springsim``).
+
+Subcommands live in :data:`COMMANDS`. A command is any object with
+``add_arguments(parser)`` and ``run(args) -> int`` (and optionally ``help``), or the
+dotted name of a module that has them (imported only when the parser is built), so
+adding one is a single line::
+
+    COMMANDS["plot"] = "springsim.viz.plot_command"
+
+Exit status: 0 success, 1 simulation blew up, 2 user error (bad scene, bad option,
+missing file; one line ``springsim: error: ...`` on stderr, no traceback), 130
+interrupted. Progress goes to stderr, results to stdout.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import math
+import sys
+import time
+from dataclasses import dataclass
+from typing import Callable
+
+from .errors import SceneError, SimulationError, SpringsimError
+
+__all__ = ["COMMANDS", "Command", "main", "build_parser"]
+
+
+@dataclass(frozen=True)
+class Command:
+    """A subcommand: ``add_arguments(parser)`` declares its options, ``run(args)`` returns the exit status."""
+
+    add_arguments: Callable[[argparse.ArgumentParser], None]
+    run: Callable[[argparse.Namespace], int]
+    help: str = ""
+
+
+class UsageError(SpringsimError):
+    """Invalid command-line usage detected after parsing (exit status 2)."""
+
+
+# -- progress ---------------------------------------------------------------------------
+class ProgressBar:
+    """A text progress bar on a stream, drawn with carriage returns.
+
+    Appears only after ``delay`` seconds and redraws at most every ``interval``
+    seconds, so short runs print nothing. Used only when the stream is a terminal.
+    """
+
+    def __init__(self, stream, *, delay: float = 1.0, interval: float = 0.2, width: int = 30):
+        self.stream = stream
+        self.delay = delay
+        self.interval = interval
+        self.width = width
+        self.t0 = time.perf_counter()
+        self._last = -math.inf
+        self.drawn = False
+
+    def __call__(self, step: int, steps: int) -> None:
+        now = time.perf_counter()
+        if now - self.t0 < self.delay or (now - self._last < self.interval and step < steps):
+            return
+        self._last = now
+        frac = step / max(steps, 1)
+        fill = int(round(self.width * frac))
+        elapsed = now - self.t0
+        eta = elapsed * (1 - frac) / frac if frac > 0 else math.nan
+        self.stream.write(f"\r[{'#' * fill}{'.' * (self.width - fill)}] {step}/{steps} "
+                          f"{elapsed:6.1f} s elapsed, {eta:6.1f} s left ")
+        self.stream.flush()
+        self.drawn = True
+
+    def close(self) -> None:
+        """End the bar's line (if one was drawn)."""
+        if self.drawn:
+            self.stream.write("\n")
+            self.stream.flush()
+            self.drawn = False
+
+
+# -- run ----------------------------------------------------------------------------------
+def _positive_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer, got {text!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {v}")
+    return v
+
+
+def _nonnegative_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer, got {text!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {v}")
+    return v
+
+
+def _positive_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number, got {text!r}") from None
+    if not (math.isfinite(v) and v > 0):
+        raise argparse.ArgumentTypeError(f"must be finite and > 0, got {text}")
+    return v
+
+
+def _run_add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("scene", help="scene file (YAML)")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--steps", type=_nonnegative_int, help="number of steps (default: the scene's, else 100)")
+    g.add_argument("--duration", type=_positive_float, metavar="T", help="simulated time [s] (steps = ceil(T/dt))")
+    p.add_argument("--dt", type=_positive_float, metavar="H", help="time step [s] (overrides solver.timestep)")
+    p.add_argument("--integrator", metavar="NAME", help="integrator (overrides solver.type)")
+    p.add_argument("--solver", metavar="NAME", help="linear solver (overrides solver.linear_solver)")
+    p.add_argument("--jacobian", metavar="MODE", help="Jacobian mode (overrides solver.jacobian)")
+    p.add_argument("--rtol", type=_positive_float, metavar="R",
+                   help="relative tolerance of iterative linear solvers (overrides solver.linear_rtol)")
+    p.add_argument("--newton-tol", type=_positive_float, metavar="TOL", help="Newton tolerance on |dv| [m/s]")
+    p.add_argument("--newton-maxiter", type=_positive_int, metavar="N", help="Newton iteration limit")
+    p.add_argument("--out", metavar="FILE.npz", help="write frames t (F,), q (F,N,3), qd (F,N,3) to an .npz")
+    p.add_argument("--frame-every", type=_positive_int, default=1, metavar="K",
+                   help="record every K-th step in --out (first and last always)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar and no summary")
+
+
+def _fmt_s(s: float) -> str:
+    if s >= 1:
+        return f"{s:.3f} s"
+    if s >= 1e-3:
+        return f"{s * 1e3:.3f} ms"
+    return f"{s * 1e6:.1f} us"
+
+
+def _summary_lines(scene, cfg, integrator, traj, steps: int) -> list[tuple[str, str]]:
+    m = scene.model
+    s = traj.summary()
+    rows = [
+        ("scene", f"{scene.source} ({scene.name})"),
+        ("particles", f"{m.particle_count} ({m.free_count} free, {m.particle_count - m.free_count} fixed)"),
+        ("springs", str(m.spring_count)),
+        ("gravitational pairs", str(m.gravitational_count)),
+        ("dofs", str(m.dof_count)),
+    ]
+    if integrator.implicit:
+        rows.append(("integrator", f"{cfg.integrator} (linear solver {getattr(integrator.solver, 'name', type(integrator.solver).__name__)}, "
+                                   f"jacobian {integrator.jacobian})"))
+    else:
+        rows.append(("integrator", cfg.integrator))
+    rows += [
+        ("steps", f"{s['steps']} x dt = {cfg.dt:g} s"),
+        ("simulated time", f"{s['steps'] * cfg.dt:g} s"),
+        ("wall time", _fmt_s(s["wall_s"])),
+        ("time per step", _fmt_s(s["step_s"])),
+    ]
+    if integrator.implicit and s["steps"]:
+        rows += [
+            ("assembly per step", _fmt_s(s["assembly_s"])),
+            ("linear solve per step", _fmt_s(s["solve_s"])),
+            ("Newton iterations", f"{s['newton_iterations']:.2f} per step"),
+            ("linear iterations", f"{s['linear_iterations']:.2f} per step"),
+            ("Newton non-converged", f"{s['newton_failures']} step(s)"),
+            ("solver fallbacks", str(s["fallbacks"])),
+            ("max linear residual", f"{s['max_linear_residual']:.2e}"),
+        ]
+    return rows
+
+
+def _run(args: argparse.Namespace) -> int:
+    from .driver import SimulationInterrupted, simulate
+    from .integrators import make_integrator
+    from .scene import DEFAULT_STEPS, load_scene
+
+    scene = load_scene(args.scene)
+    cfg = scene.config.with_overrides(dt=args.dt, integrator=args.integrator, linear_solver=args.solver,
+                                      jacobian=args.jacobian, linear_rtol=args.rtol, newton_tol=args.newton_tol,
+                                      newton_maxiter=args.newton_maxiter)
+    if args.steps is not None:
+        steps = args.steps
+    elif args.duration is not None:
+        steps = max(int(math.ceil(args.duration / cfg.dt - 1e-9)), 1)
+    else:
+        steps = cfg.steps if cfg.steps is not None else DEFAULT_STEPS
+    integrator = make_integrator(cfg.integrator, scene.model, **cfg.integrator_options())
+
+    progress = None
+    if not args.quiet and sys.stderr.isatty():
+        progress = ProgressBar(sys.stderr)
+    record = args.out is not None
+    try:
+        traj = simulate(scene.model, integrator, cfg.dt, steps, frame_every=args.frame_every, record=record,
+                        progress=progress)
+    except SimulationError as e:
+        if progress is not None:
+            progress.close()
+        interrupted = isinstance(e, SimulationInterrupted)
+        print(f"springsim: {'interrupted' if interrupted else 'error'}: {e}", file=sys.stderr)
+        if args.out is not None and e.trajectory is not None and e.trajectory.frame_count:
+            e.trajectory.save(args.out)
+            print(f"springsim: saved {e.trajectory.frame_count} finite frame(s) up to "
+                  f"t={e.trajectory.t[-1]:g} s to {args.out}", file=sys.stderr)
+        return 130 if interrupted else 1
+    if progress is not None:
+        progress.close()
+    if args.out is not None:
+        traj.save(args.out)
+    if not args.quiet:
+        rows = _summary_lines(scene, cfg, integrator, traj, steps)
+        if args.out is not None:
+            rows.append(("output", f"{args.out} ({traj.frame_count} frames)"))
+        w = max(len(k) for k, _ in rows)
+        for k, v in rows:
+            print(f"{k + ':':<{w + 1}} {v}")
+    return 0
+
+
+#: Registry of subcommands: name -> Command, or dotted module name with add_arguments/run.
+COMMANDS: dict[str, object] = {
+    "run": Command(_run_add_arguments, _run, "run a scene and print a summary"),
+}
+
+
+def _resolve(cmd):
+    if isinstance(cmd, str):
+        cmd = importlib.import_module(cmd)
+    return cmd
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The top-level parser with one subparser per entry of :data:`COMMANDS`."""
+    from . import __version__
+
+    parser = argparse.ArgumentParser(prog="springsim", description="Large mass-spring systems, implicitly integrated.")
+    parser.add_argument("--version", action="version", version=f"springsim {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+    for name, cmd in COMMANDS.items():
+        cmd = _resolve(cmd)
+        doc = (getattr(cmd, "__doc__", None) or "").strip().splitlines()
+        help_ = getattr(cmd, "help", None) or getattr(cmd, "HELP", None) or (doc[0] if doc else "")
+        p = sub.add_parser(name, help=help_, description=help_)
+        cmd.add_arguments(p)
+        p.set_defaults(_command=cmd)
+    return parser
+
+
+def _error(message: str) -> int:
+    print(f"springsim: error: {' '.join(str(message).split())}", file=sys.stderr)
+    return 2
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Parse ``argv`` (default ``sys.argv[1:]``), run the command, return the exit status."""
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as e:  # argparse: --help/--version (0) or usage error (2)
+        return int(e.code) if isinstance(e.code, int) else 2
+    scene = getattr(args, "scene", None)
+    try:
+        return int(args._command.run(args))
+    except SceneError as e:
+        msg = str(e)
+        if scene and not msg.startswith(str(scene)):
+            msg = f"{scene}: {msg}"
+        return _error(msg)
+    except SpringsimError as e:
+        return _error(str(e))
+    except KeyboardInterrupt:
+        print("springsim: interrupted", file=sys.stderr)
+        return 130
+    except OSError as e:
+        return _error(f"{e.filename + ': ' if getattr(e, 'filename', None) else ''}{e.strerror or e}")
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,601 @@
+"""Load a YAML scene (the assignment's "Nemo" format plus generator blocks) into a :class:`Scene`.
+
+The format is documented key by key in ``docs/scene-format.md``. In short::
+
+    solver:   {type: implicit_euler, timestep: 0.01, gravity: -9.81, ...}
+    particles:
+      - {pos: [0, 0, 1], vel: [0, 0, 0], mass: 0.1, fixed: true, drag: 0.0, radius: 0.01}
+    springs:
+      - {particle_ids: [0, 1], stiffness: 100.0, damping: 0.5, rest_length: 0.2}
+    gravitational:
+      - {particle_ids: [0, 1], G: 100.0}
+    cloth: {nx: 64, ny: 64, size: [1, 1], total_mass: 1.0, ke: 1.0e4, pin: edge}
+    benchmark_cloth: {n: 64, kd: 0}
+    plot: {particle_id: 1, dof: 2, y_range: [-1, 1]}
+
+Every problem raises :class:`~springsim.errors.SceneError` whose message is one
+line naming the field path (``particles[3]: unknown key 'colour'``). Items are
+type-checked one by one (the YAML is a list of dicts, so that is linear in the
+file size); the numbers are then converted to arrays in bulk and handed to the
+builder's bulk forms, which validate values (finite, mass > 0, ids in range, ...)
+vectorised.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from ..builder import ModelBuilder
+from ..errors import SceneError
+from ..model import AXES, Model
+from .gallery import BENCHMARK_DT, PIN_MODES, add_cloth_grid
+
+__all__ = ["Scene", "SolverConfig", "PlotSpec", "load_scene", "parse_scene", "DEFAULT_STEPS"]
+
+#: Run length used when neither the scene nor the caller gives one.
+DEFAULT_STEPS = 100
+
+_TOP_KEYS = ("solver", "particles", "springs", "gravitational", "plot", "cloth", "benchmark_cloth",
+             "name", "description")
+_SOLVER_KEYS = ("type", "timestep", "gravity", "up_axis", "steps", "duration", "linear_solver", "jacobian",
+                "linear_rtol", "newton_tol", "newton_maxiter", "time_rtol", "time_atol")
+_PARTICLE_KEYS = ("pos", "vel", "mass", "fixed", "radius", "drag")
+_SPRING_KEYS = ("particle_ids", "stiffness", "damping", "rest_length")
+_GRAV_KEYS = ("particle_ids", "G")
+_PLOT_KEYS = ("particle_id", "dof", "y_range")
+_CLOTH_KEYS = ("nx", "ny", "origin", "spacing", "size", "plane", "mass", "total_mass", "drag", "ke", "kd",
+               "ke_y", "kd_y", "ke_shear", "kd_shear", "bending", "ke_bend", "kd_bend", "pin")
+_BENCH_KEYS = ("n", "kd", "ke", "ke_bend", "ke_shear", "total_mass", "pin")
+_CLOTH_PLANES = ("xy", "xz", "yz")
+
+
+class _Loader(yaml.SafeLoader):
+    """``yaml.SafeLoader`` that also reads ``1e4`` and ``1.0e4`` as floats (YAML 1.2 style).
+
+    PyYAML follows YAML 1.1, where an exponent needs a sign and a dot (``1.0e+4``), so
+    ``ke: 1e4`` would silently be the string ``"1e4"``.
+    """
+
+
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*\.[0-9_]*|\.[0-9_]+|[0-9][0-9_]*)[eE][-+]?[0-9]+$"),
+    list("-+0123456789."))
+
+
+# -- the result ---------------------------------------------------------------------------
+@dataclass
+class SolverConfig:
+    """Time-integration settings of a scene (the ``solver:`` block).
+
+    Attributes
+    ----------
+    integrator : str
+        Integrator name, a key of :data:`springsim.integrators.INTEGRATORS` (YAML ``type``).
+    dt : float
+        Time step [s], > 0 (YAML ``timestep``).
+    steps : int or None
+        Default run length (YAML ``steps``, or ``duration`` / ``timestep`` rounded up).
+    linear_solver : str or None
+        Linear solver name, a key of :data:`springsim.linsolve.LINEAR_SOLVERS`; None: the integrator's default.
+    jacobian : str or None
+        Jacobian mode (:data:`springsim.forces.JACOBIAN_MODES`); None: the integrator's default.
+    linear_rtol : float or None
+        Relative tolerance of iterative linear solvers, > 0.
+    newton_tol : float or None
+        Newton stopping tolerance on ``|dv|_2`` [m/s], > 0.
+    newton_maxiter : int or None
+        Newton iteration limit, >= 1.
+    time_rtol, time_atol : float or None
+        Local error tolerances of adaptive time stepping, > 0.
+    """
+
+    integrator: str
+    dt: float
+    steps: int | None = None
+    linear_solver: str | None = None
+    jacobian: str | None = None
+    linear_rtol: float | None = None
+    newton_tol: float | None = None
+    newton_maxiter: int | None = None
+    time_rtol: float | None = None
+    time_atol: float | None = None
+
+    def validate(self) -> "SolverConfig":
+        """Check every field (names against the registries as they are now); return self.
+
+        Raises
+        ------
+        SceneError
+            With a ``solver.<key>`` path.
+        """
+        from ..forces import _base as forces_base
+        from ..integrators import INTEGRATORS
+        from ..linsolve import LINEAR_SOLVERS
+
+        _choice("solver.type", self.integrator, INTEGRATORS, "integrator")
+        if self.linear_solver is not None:
+            _choice("solver.linear_solver", self.linear_solver, LINEAR_SOLVERS, "linear solver")
+        if self.jacobian is not None:
+            _choice("solver.jacobian", self.jacobian, forces_base.JACOBIAN_MODES, "jacobian mode")
+        _positive("solver.timestep", self.dt)
+        for key in ("linear_rtol", "newton_tol", "time_rtol", "time_atol"):
+            v = getattr(self, key)
+            if v is not None:
+                _positive(f"solver.{key}", v)
+        for key, lo in (("newton_maxiter", 1), ("steps", 0)):
+            v = getattr(self, key)
+            if v is not None and (not _is_int(v) or v < lo):
+                raise SceneError(f"solver.{key}", f"must be an integer >= {lo}, got {_show(v)}")
+        return self
+
+    def with_overrides(self, **overrides) -> "SolverConfig":
+        """A validated copy with the non-None ``overrides`` applied (CLI options)."""
+        return replace(self, **{k: v for k, v in overrides.items() if v is not None}).validate()
+
+    def integrator_options(self) -> dict:
+        """Keyword options for :func:`springsim.integrators.make_integrator` (only those that are set)."""
+        opts: dict = {}
+        if self.linear_solver is not None:
+            opts["solver"] = self.linear_solver
+        if self.jacobian is not None:
+            opts["jacobian"] = self.jacobian
+        if self.newton_tol is not None:
+            opts["newton_tol"] = self.newton_tol
+        if self.newton_maxiter is not None:
+            opts["newton_maxiter"] = self.newton_maxiter
+        if self.linear_rtol is not None:
+            opts["solver_options"] = {"rtol": self.linear_rtol}
+        return opts
+
+
+@dataclass(frozen=True)
+class PlotSpec:
+    """The ``plot:`` block: which coordinate of which particle to plot.
+
+    Attributes
+    ----------
+    particle_id : int
+        Particle index, in range.
+    dof : int
+        Coordinate 0, 1 or 2 (x, y, z).
+    y_range : tuple of float or None
+        Vertical axis limits ``(lo, hi)`` [m], ``lo < hi``; None: automatic.
+    """
+
+    particle_id: int
+    dof: int
+    y_range: tuple[float, float] | None = None
+
+
+@dataclass
+class Scene:
+    """A loaded scene.
+
+    Attributes
+    ----------
+    model : Model
+    config : SolverConfig
+    plot : PlotSpec or None
+    source : str
+        File path, or ``"<string>"`` for text.
+    name : str
+        The scene's ``name:`` or the file's stem.
+    """
+
+    model: Model
+    config: SolverConfig
+    plot: PlotSpec | None = None
+    source: str = "<string>"
+    name: str = "scene"
+    metadata: dict = field(default_factory=dict)
+
+
+# -- small checks -------------------------------------------------------------------------
+def _show(v, limit: int = 60) -> str:
+    s = repr(v)
+    return s if len(s) <= limit else s[: limit - 3] + "..."
+
+
+def _type_name(v) -> str:
+    return {bool: "a boolean", str: "a string", list: "a list", dict: "a mapping",
+            type(None): "null", int: "an integer", float: "a number"}.get(type(v), type(v).__name__)
+
+
+def _is_num(v) -> bool:
+    t = type(v)
+    return t is float or (t is int and -1e300 < v < 1e300)
+
+
+def _is_int(v) -> bool:
+    return type(v) is int
+
+
+def _choice(path: str, v, allowed, what: str) -> None:
+    if not isinstance(v, str) or v not in allowed:
+        raise SceneError(path, f"unknown {what} {_show(v)}; choose one of {', '.join(allowed)}")
+
+
+def _positive(path: str, v) -> None:
+    if not _is_num(v):
+        raise SceneError(path, f"must be a number, got {_type_name(v)} {_show(v)}")
+    if not (math.isfinite(v) and v > 0):
+        raise SceneError(path, f"must be finite and > 0, got {_show(v)}")
+
+
+def _number(path: str, v, *, lo: float | None = None, strict: bool = False) -> float:
+    if not _is_num(v):
+        raise SceneError(path, f"must be a number, got {_type_name(v)} {_show(v)}")
+    if not math.isfinite(v):
+        raise SceneError(path, f"must be finite, got {_show(v)}")
+    if lo is not None and (v <= lo if strict else v < lo):
+        raise SceneError(path, f"must be {'>' if strict else '>='} {lo:g}, got {_show(v)}")
+    return float(v)
+
+
+def _vector(path: str, v, n: int = 3) -> list:
+    if type(v) is not list or len(v) != n or not all(_is_num(x) for x in v):
+        if type(v) is not list:
+            raise SceneError(path, f"must be a list of {n} numbers, got {_type_name(v)} {_show(v)}")
+        if len(v) != n:
+            raise SceneError(path, f"must have {n} components, got {len(v)}")
+        k = next(k for k, x in enumerate(v) if not _is_num(x))
+        raise SceneError(f"{path}[{k}]", f"must be a number, got {_type_name(v[k])} {_show(v[k])}")
+    return v
+
+
+def _mapping(path: str, v, allowed: tuple[str, ...], required: tuple[str, ...] = ()) -> dict:
+    if type(v) is not dict:
+        raise SceneError(path, f"must be a mapping, got {_type_name(v)} {_show(v)}")
+    _keys(path, v, allowed, required)
+    return v
+
+
+def _keys(path: str, d: dict, allowed, required=()) -> None:
+    for k in d:
+        if k not in allowed:
+            raise SceneError(path, f"unknown key {_show(k)}; allowed: {', '.join(allowed)}")
+    for k in required:
+        if k not in d:
+            raise SceneError(path, f"missing required key {k!r}")
+
+
+def _item_list(path: str, v) -> list:
+    if v is None:
+        return []
+    if type(v) is not list:
+        raise SceneError(path, f"must be a list, got {_type_name(v)} {_show(v)}")
+    return v
+
+
+# -- sections -----------------------------------------------------------------------------
+def _parse_solver(doc: dict, default_dt: float | None) -> tuple[SolverConfig, float, str]:
+    s = doc.get("solver")
+    if s is None:
+        raise SceneError("solver", "missing required block (needs at least 'type' and 'timestep')")
+    _mapping("solver", s, _SOLVER_KEYS, ("type",) if default_dt is not None else ("type", "timestep"))
+    dt = s.get("timestep", default_dt)
+    _positive("solver.timestep", dt)
+    steps = s.get("steps")
+    if "duration" in s:
+        if steps is not None:
+            raise SceneError("solver", "give steps or duration, not both")
+        dur = _number("solver.duration", s["duration"], lo=0.0)
+        if not dur / dt < 1e12:
+            raise SceneError("solver.duration", f"needs too many steps of {dt:g} s, got {_show(dur)}")
+        steps = max(int(math.ceil(dur / dt - 1e-9)), 0)
+    for key in ("type", "linear_solver", "jacobian"):
+        if key in s and not isinstance(s[key], str):
+            raise SceneError(f"solver.{key}", f"must be a string, got {_type_name(s[key])} {_show(s[key])}")
+    gravity = _number("solver.gravity", s.get("gravity", -9.81))
+    up = s.get("up_axis", "z")
+    if up not in AXES and not (_is_int(up) and 0 <= up <= 2):
+        raise SceneError("solver.up_axis", f"must be one of {', '.join(AXES)} (or 0, 1, 2), got {_show(up)}")
+    for key in ("linear_rtol", "newton_tol", "time_rtol", "time_atol"):
+        if key in s:
+            _positive(f"solver.{key}", s[key])
+    cfg = SolverConfig(integrator=s["type"], dt=float(dt), steps=steps, linear_solver=s.get("linear_solver"),
+                       jacobian=s.get("jacobian"), linear_rtol=_opt_float(s, "linear_rtol"),
+                       newton_tol=_opt_float(s, "newton_tol"), newton_maxiter=s.get("newton_maxiter"),
+                       time_rtol=_opt_float(s, "time_rtol"), time_atol=_opt_float(s, "time_atol"))
+    return cfg.validate(), gravity, up
+
+
+def _opt_float(s: dict, key: str) -> float | None:
+    return None if s.get(key) is None else float(s[key])
+
+
+def _parse_particles(items: list) -> dict[str, np.ndarray]:
+    n = len(items)
+    pos, vel, mass = [None] * n, [None] * n, [None] * n
+    fixed, radius, drag = [False] * n, [math.nan] * n, [0.0] * n
+    allowed, required = set(_PARTICLE_KEYS), ("pos", "mass")
+    for k, p in enumerate(items):
+        if type(p) is not dict or not allowed.issuperset(p) or "pos" not in p or "mass" not in p:
+            _mapping(f"particles[{k}]", p, _PARTICLE_KEYS, required)
+        pos[k] = _vector_fast(f"particles[{k}].pos", p["pos"])
+        v = p.get("vel")
+        vel[k] = (0.0, 0.0, 0.0) if v is None else _vector_fast(f"particles[{k}].vel", v)
+        m = p["mass"]
+        if not _is_num(m):
+            _number(f"particles[{k}].mass", m)
+        mass[k] = m
+        if "fixed" in p:
+            f = p["fixed"]
+            if type(f) is not bool:
+                raise SceneError(f"particles[{k}].fixed", f"must be true or false, got {_type_name(f)} {_show(f)}")
+            fixed[k] = f
+        r = p.get("radius")
+        if r is not None:
+            radius[k] = _number(f"particles[{k}].radius", r, lo=0.0)
+        d = p.get("drag")
+        if d is not None:
+            if not _is_num(d):
+                _number(f"particles[{k}].drag", d)
+            drag[k] = d
+    return {"pos": np.array(pos, dtype=np.float64).reshape(n, 3), "vel": np.array(vel, dtype=np.float64).reshape(n, 3),
+            "mass": np.array(mass, dtype=np.float64), "fixed": np.array(fixed, dtype=bool),
+            "radius": np.array(radius, dtype=np.float64), "drag": np.array(drag, dtype=np.float64)}
+
+
+def _vector_fast(path: str, v) -> list:
+    # The common case costs one type test, one len and three type tests.
+    if type(v) is list and len(v) == 3 and _is_num(v[0]) and _is_num(v[1]) and _is_num(v[2]):
+        return v
+    return _vector(path, v)
+
+
+def _ids(path: str, v, n: int) -> list:
+    if type(v) is list and len(v) == 2 and type(v[0]) is int and type(v[1]) is int \
+            and 0 <= v[0] < n and 0 <= v[1] < n:
+        return v
+    if type(v) is not list:
+        raise SceneError(path, f"must be a list of 2 particle ids, got {_type_name(v)} {_show(v)}")
+    if len(v) != 2:
+        raise SceneError(path, f"must have 2 particle ids, got {len(v)}")
+    for x in v:
+        if type(x) is not int:
+            raise SceneError(path, f"particle ids must be integers, got {_show(v)}")
+    raise SceneError(path, f"particle id out of range [0, {n}), got {_show(v)}")
+
+
+def _parse_pairs(group: str, items: list, n: int, keys: tuple[str, ...], value_keys: dict) -> dict:
+    """Check pair items; ``value_keys`` maps key -> (required, default) of the number fields."""
+    m = len(items)
+    allowed = set(keys)
+    required = ("particle_ids",) + tuple(k for k, (req, _) in value_keys.items() if req)
+    ids = [None] * m
+    cols = {k: [default] * m for k, (_, default) in value_keys.items()}
+    for k, s in enumerate(items):
+        if type(s) is not dict or not allowed.issuperset(s) or not all(r in s for r in required):
+            _mapping(f"{group}[{k}]", s, keys, required)
+        ids[k] = _ids(f"{group}[{k}].particle_ids", s["particle_ids"], n)
+        for key, col in cols.items():
+            if key in s:
+                x = s[key]
+                if x is None and key == "rest_length":
+                    continue
+                if not _is_num(x):
+                    _number(f"{group}[{k}].{key}", x)
+                col[k] = x
+    out = {key: np.array(col, dtype=np.float64) for key, col in cols.items()}
+    out["ids"] = np.array(ids, dtype=np.int64).reshape(m, 2)
+    return out
+
+
+def _parse_cloth(path: str, c) -> dict:
+    _mapping(path, c, _CLOTH_KEYS, ("nx", "ny"))
+    kw: dict = {}
+    for key in ("nx", "ny"):
+        v = c[key]
+        if not _is_int(v) or v < 2:
+            raise SceneError(f"{path}.{key}", f"must be an integer >= 2, got {_show(v)}")
+        kw[key] = v
+    if "spacing" in c and "size" in c:
+        raise SceneError(path, "give spacing or size, not both")
+    if "mass" in c and "total_mass" in c:
+        raise SceneError(path, "give mass or total_mass, not both")
+    if "origin" in c:
+        kw["origin"] = [_number(f"{path}.origin[{k}]", x) for k, x in enumerate(_vector(f"{path}.origin", c["origin"]))]
+    if "size" in c:
+        size = _vector(f"{path}.size", c["size"], 2)
+        for k, x in enumerate(size):
+            _number(f"{path}.size[{k}]", x, lo=0.0, strict=True)
+        kw["size"] = tuple(float(x) for x in size)
+    for key in ("spacing", "mass", "total_mass"):
+        if key in c:
+            kw[key] = _number(f"{path}.{key}", c[key], lo=0.0, strict=True)
+    for key in ("drag", "ke", "kd", "ke_y", "kd_y", "ke_shear", "kd_shear", "ke_bend", "kd_bend"):
+        if key in c:
+            kw[key] = _number(f"{path}.{key}", c[key], lo=0.0)
+    if "bending" in c:
+        if type(c["bending"]) is not bool:
+            raise SceneError(f"{path}.bending", f"must be true or false, got {_show(c['bending'])}")
+        kw["bending"] = c["bending"]
+    if "plane" in c:
+        _choice(f"{path}.plane", c["plane"], _CLOTH_PLANES, "plane")
+        kw["plane"] = c["plane"]
+    if "pin" in c:
+        _choice(f"{path}.pin", c["pin"], PIN_MODES, "pin mode")
+        kw["pin"] = c["pin"]
+    return kw
+
+
+def _parse_benchmark(c) -> dict:
+    path = "benchmark_cloth"
+    _mapping(path, c, _BENCH_KEYS, ("n",))
+    n = c["n"]
+    if not _is_int(n) or n < 2:
+        raise SceneError(f"{path}.n", f"must be an integer >= 2, got {_show(n)}")
+    kd = _number(f"{path}.kd", c.get("kd", 0.0), lo=0.0)
+    ke = _number(f"{path}.ke", c.get("ke", 1e4), lo=0.0)
+    kw = dict(nx=n, ny=n, size=(1.0, 1.0), ke=ke, kd=kd, kd_shear=kd, bending=True, kd_bend=kd,
+              ke_bend=_number(f"{path}.ke_bend", c.get("ke_bend", 1e2), lo=0.0),
+              ke_shear=_number(f"{path}.ke_shear", c.get("ke_shear", ke), lo=0.0),
+              total_mass=_number(f"{path}.total_mass", c.get("total_mass", 1.0), lo=0.0, strict=True))
+    pin = c.get("pin", "edge")
+    _choice(f"{path}.pin", pin, PIN_MODES, "pin mode")
+    kw["pin"] = pin
+    return kw
+
+
+def _parse_plot(p, n: int) -> PlotSpec:
+    _mapping("plot", p, _PLOT_KEYS, ("particle_id", "dof"))
+    pid, dof = p["particle_id"], p["dof"]
+    if not _is_int(pid) or not 0 <= pid < n:
+        raise SceneError("plot.particle_id", f"must be an integer particle id in [0, {n}), got {_show(pid)}")
+    if not _is_int(dof) or not 0 <= dof <= 2:
+        raise SceneError("plot.dof", f"must be 0, 1 or 2, got {_show(dof)}")
+    yr = p.get("y_range")
+    if yr is not None:
+        lo, hi = (_number(f"plot.y_range[{k}]", x) for k, x in enumerate(_vector("plot.y_range", yr, 2)))
+        if not lo < hi:
+            raise SceneError("plot.y_range", f"needs lo < hi, got {_show(yr)}")
+        yr = (lo, hi)
+    return PlotSpec(particle_id=pid, dof=dof, y_range=yr)
+
+
+# -- entry points -------------------------------------------------------------------------
+def parse_scene(doc, *, source: str = "<string>") -> Scene:
+    """Build a :class:`Scene` from an already-parsed YAML document (a dict).
+
+    Raises
+    ------
+    SceneError
+        On any invalid content, with a one-line message naming the field path.
+    """
+    if doc is None:
+        raise SceneError(source, "empty scene file")
+    if type(doc) is not dict:
+        raise SceneError(source, f"the top level must be a mapping of sections, got {_type_name(doc)}")
+    allowed = _TOP_KEYS
+    for k in doc:
+        if k not in allowed and not (isinstance(k, str) and k.startswith("x-")):
+            raise SceneError(source, f"unknown top-level key {_show(k)}; allowed: {', '.join(allowed)} (and x-* keys)")
+    for key in ("name", "description"):
+        if key in doc and not isinstance(doc[key], str):
+            raise SceneError(key, f"must be a string, got {_type_name(doc[key])}")
+
+    # generator blocks first, to know the particle count for id checks
+    cloth = doc.get("cloth")
+    if cloth is None:
+        cloths = []
+    elif type(cloth) is dict:
+        cloths = [_parse_cloth("cloth", cloth)]
+    elif type(cloth) is list:
+        cloths = [_parse_cloth(f"cloth[{k}]", c) for k, c in enumerate(cloth)]
+    else:
+        raise SceneError("cloth", f"must be a mapping or a list of mappings, got {_type_name(cloth)}")
+    if "benchmark_cloth" in doc:
+        cloths.append(_parse_benchmark(doc["benchmark_cloth"]))
+    cfg, gravity, up = _parse_solver(doc, BENCHMARK_DT if "benchmark_cloth" in doc else None)
+
+    particles = _parse_particles(_item_list("particles", doc.get("particles")))
+    n_explicit = particles["pos"].shape[0]
+    n = n_explicit + sum(c["nx"] * c["ny"] for c in cloths)
+    if n == 0:
+        raise SceneError("particles", "the scene has no particles (give 'particles', 'cloth' or 'benchmark_cloth')")
+    springs = _parse_pairs("springs", _item_list("springs", doc.get("springs")), n, _SPRING_KEYS,
+                           {"stiffness": (True, 0.0), "damping": (False, 0.0), "rest_length": (False, math.nan)})
+    gravs = _parse_pairs("gravitational", _item_list("gravitational", doc.get("gravitational")), n, _GRAV_KEYS,
+                         {"G": (True, 0.0)})
+    plot = _parse_plot(doc["plot"], n) if doc.get("plot") is not None else None
+
+    b = ModelBuilder(gravity=gravity, up_axis=up)
+    if n_explicit:
+        b.add_particles(particles["pos"], particles["vel"], particles["mass"], radius=particles["radius"],
+                        drag=particles["drag"], fixed=particles["fixed"])
+    # explicit springs before generated ones, so builder paths springs[k] match the file
+    if springs["ids"].shape[0]:
+        b.add_springs(springs["ids"], springs["stiffness"], springs["damping"], springs["rest_length"])
+    if gravs["ids"].shape[0]:
+        b.add_gravitationals(gravs["ids"], gravs["G"])
+    blocks = []
+    for kw in cloths:
+        kw = dict(kw)
+        nx, ny = kw.pop("nx"), kw.pop("ny")
+        r = add_cloth_grid(b, nx, ny, **kw)
+        blocks.append((r.start, nx, ny))
+    name = doc.get("name") or (Path(source).stem if source != "<string>" else "scene")
+    b.metadata.update(name=name, source=source)
+    if blocks:
+        b.metadata.update(cloth_blocks=blocks, cloth_shape=(blocks[0][1], blocks[0][2]))
+    model = b.finalize()
+    return Scene(model=model, config=cfg, plot=plot, source=source, name=name,
+                 metadata={"description": doc.get("description", "")})
+
+
+def _looks_like_path(x) -> bool:
+    if isinstance(x, os.PathLike):
+        return True
+    if not isinstance(x, str) or "\n" in x:
+        return False
+    return x.endswith((".yaml", ".yml")) or os.path.isfile(x)
+
+
+def load_scene(path_or_text) -> Scene:
+    """Load a scene from a YAML file path or from YAML text.
+
+    Parameters
+    ----------
+    path_or_text : str or os.PathLike
+        A path (a ``PathLike``, or a one-line string ending in ``.yaml``/``.yml`` or
+        naming an existing file) or the YAML text itself.
+
+    Returns
+    -------
+    Scene
+
+    Raises
+    ------
+    SceneError
+        One-line ``path: message`` for every problem: missing or unreadable file, YAML
+        syntax errors (with line and column), invalid content.
+
+    Examples
+    --------
+    >>> s = load_scene("solver: {type: implicit_euler, timestep: 0.01}\\n"
+    ...                "particles: [{pos: [0, 0, 0], mass: 1}]\\n")
+    >>> s.model.particle_count, s.config.integrator
+    (1, 'implicit_euler')
+    """
+    if _looks_like_path(path_or_text):
+        source = os.fspath(path_or_text)
+        try:
+            text = Path(source).read_text(encoding="utf-8")
+        except FileNotFoundError:
+            raise SceneError(source, "no such file") from None
+        except IsADirectoryError:
+            raise SceneError(source, "is a directory, not a scene file") from None
+        except (OSError, UnicodeDecodeError) as e:
+            raise SceneError(source, f"cannot read: {type(e).__name__}: {_one_line(str(e))}") from None
+    elif isinstance(path_or_text, str):
+        source, text = "<string>", path_or_text
+    else:
+        raise SceneError("", f"expected a path or YAML text, got {type(path_or_text).__name__}")
+    try:
+        doc = yaml.load(text, Loader=_Loader)  # noqa: S506 (a SafeLoader subclass)
+    except yaml.MarkedYAMLError as e:
+        mark = e.problem_mark or e.context_mark
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        what = _one_line(" ".join(x for x in (e.context, e.problem) if x)) or "invalid YAML"
+        raise SceneError(source, f"YAML syntax error{where}: {what}") from None
+    except yaml.YAMLError as e:
+        raise SceneError(source, f"YAML error: {_one_line(str(e))}") from None
+    except RecursionError:
+        raise SceneError(source, "YAML document is nested too deeply") from None
+    try:
+        return parse_scene(doc, source=source)
+    except RecursionError:
+        raise SceneError(source, "YAML document is nested too deeply") from None
+
+
+def _one_line(s: str) -> str:
+    return " ".join(s.split())
