@@ -1,7 +1,7 @@
 """Speed against error of every integrator, time step, Newton tolerance and linear solver.
 
 For each case (benchmark cloths n = 8, 16, 32 and the shipped scenes spring,
-damped chain, three-body) the final state after ``horizon`` seconds is compared
+stiff damped chain, three-body; ``scenes/*.yaml``) the final state after ``horizon`` seconds is compared
 with an independent ``solve_ivp`` reference (:func:`springsim.reference.reference_trajectory`,
 rtol 1e-10). Three sweeps:
 
@@ -36,7 +36,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _common import (RESULTS_DIR, benchmark_case, fit_order, markdown_table, position_errors,  # noqa: E402
+from _common import (RESULTS_DIR, SCENE_NAMES, benchmark_case, fit_order, markdown_table, position_errors,  # noqa: E402
                      pyplot, reference_final, scene_case, total_energy, write_csv)
 
 __all__ = ["COLUMNS", "ORDER_COLUMNS", "run_case", "orders", "main"]
@@ -212,7 +212,7 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--quick", action="store_true", help="tiny run (8x8 cloth, spring scene, 3 time steps)")
     p.add_argument("--cloth", type=int, nargs="*", default=None, help="cloth sizes n (default 8 16 32)")
-    p.add_argument("--scenes", nargs="*", default=None, help="shipped scenes (default spring damped_chain three_body)")
+    p.add_argument("--scenes", nargs="*", default=None, help="shipped scenes (default spring stiff_chain three_body)")
     p.add_argument("--horizon", type=float, default=0.5, help="simulated time [s]")
     p.add_argument("--ref-method", default="auto", help="solve_ivp method of the reference (auto|Radau|BDF|DOP853)")
     p.add_argument("--out", type=Path, default=RESULTS_DIR, help="output directory")
@@ -225,7 +225,7 @@ def main(argv=None) -> int:
         horizon = min(a.horizon, 0.05)
     else:
         cloths = [8, 16, 32] if a.cloth is None else a.cloth
-        scenes = ["spring", "damped_chain", "three_body"] if a.scenes is None else a.scenes
+        scenes = list(SCENE_NAMES) if a.scenes is None else a.scenes
         dts, ntols, rtols, horizon = DT_LADDER, NEWTON_TOLS, SOLVER_RTOLS, a.horizon
     cases = [scene_case(s, horizon) for s in scenes] + [benchmark_case(n, horizon) for n in cloths]
     rows = []
