@@ -67,6 +67,20 @@ def test_approximate_modes_are_symmetric_and_dissipative(name, mode):
             assert lam.min() >= -1e-10 * max(np.abs(lam).max(), 1.0)
 
 
+@pytest.mark.parametrize("name", TERMS)
+def test_symmetric_mode_is_exact_when_exact_is_symmetric(name):
+    """Where the exact Jacobians are already symmetric (no damping), ``symmetric`` mode equals ``exact``."""
+    rng = np.random.default_rng(736)
+    model = random_scene(rng, damping=False)
+    term = _term(name, model)
+    q, qd = _perturbed(model, rng)
+    exact = dense_jacobians([term], q, qd, "exact")
+    for J in exact:
+        assert np.abs(J - J.T).max() <= 1e-13 * max(np.abs(J).max(), 1.0)
+    for J, E in zip(dense_jacobians([term], q, qd, "symmetric"), exact):
+        np.testing.assert_array_equal(J, E)
+
+
 @pytest.mark.parametrize("mode", JACOBIAN_MODES)
 @pytest.mark.parametrize("name", TERMS)
 def test_block_shapes_and_layouts(name, mode):
