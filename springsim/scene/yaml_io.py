@@ -37,10 +37,15 @@ from ..errors import SceneError
 from ..model import AXES, Model
 from .gallery import BENCHMARK_DT, PIN_MODES, add_cloth_grid
 
-__all__ = ["Scene", "SolverConfig", "PlotSpec", "load_scene", "parse_scene", "DEFAULT_STEPS"]
+__all__ = ["Scene", "SolverConfig", "PlotSpec", "load_scene", "parse_scene", "DEFAULT_STEPS",
+           "MAX_GENERATED_PARTICLES"]
 
 #: Run length used when neither the scene nor the caller gives one.
 DEFAULT_STEPS = 100
+
+#: Largest particle count the generator blocks may create (read at call time), so a typo
+#: such as ``nx: 1000000`` is an error rather than an out-of-memory crash.
+MAX_GENERATED_PARTICLES = 50_000_000
 
 _TOP_KEYS = ("solver", "particles", "springs", "gravitational", "plot", "cloth", "benchmark_cloth",
              "name", "description")
@@ -495,11 +500,16 @@ def parse_scene(doc, *, source: str = "<string>") -> Scene:
         raise SceneError("cloth", f"must be a mapping or a list of mappings, got {_type_name(cloth)}")
     if "benchmark_cloth" in doc:
         cloths.append(_parse_benchmark(doc["benchmark_cloth"]))
+    generated = sum(c["nx"] * c["ny"] for c in cloths)
+    if generated > MAX_GENERATED_PARTICLES:
+        raise SceneError("cloth" if "cloth" in doc else "benchmark_cloth",
+                         f"generator blocks would create {generated} particles, more than the limit "
+                         f"springsim.scene.yaml_io.MAX_GENERATED_PARTICLES = {MAX_GENERATED_PARTICLES}")
     cfg, gravity, up = _parse_solver(doc, BENCHMARK_DT if "benchmark_cloth" in doc else None)
 
     particles = _parse_particles(_item_list("particles", doc.get("particles")))
     n_explicit = particles["pos"].shape[0]
-    n = n_explicit + sum(c["nx"] * c["ny"] for c in cloths)
+    n = n_explicit + generated
     if n == 0:
         raise SceneError("particles", "the scene has no particles (give 'particles', 'cloth' or 'benchmark_cloth')")
     springs = _parse_pairs("springs", _item_list("springs", doc.get("springs")), n, _SPRING_KEYS,
