@@ -1,0 +1,184 @@
+"""The ``springsim`` command line: run, overrides, --out, exit codes and one-line errors."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from springsim import cli
+from springsim.errors import SimulationError
+
+ROOT = Path(__file__).resolve().parents[2]
+SPRING = str(ROOT / "scenes" / "spring.yaml")
+
+SCENE = """
+solver: {type: implicit_euler, timestep: 0.01, steps: 5}
+particles:
+  - {pos: [0, 0, 1], mass: 1, fixed: true}
+  - {pos: [0, 0, 0], mass: 1}
+springs:
+  - {particle_ids: [0, 1], stiffness: 100}
+"""
+
+
+@pytest.fixture
+def scene_file(tmp_path):
+    """A two-particle spring scene written to a temporary file."""
+    f = tmp_path / "s.yaml"
+    f.write_text(SCENE)
+    return f
+
+
+def _run(capsys, *argv):
+    code = cli.main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_run_prints_summary(capsys, scene_file):
+    """``run`` exits 0 and prints the summary rows on stdout, nothing on stderr (not a tty)."""
+    code, out, err = _run(capsys, "run", scene_file)
+    assert code == 0 and err == ""
+    for key in ("scene:", "particles:", "2 (1 free, 1 fixed)", "springs:", "gravitational pairs:", "dofs:",
+                "implicit_euler (linear solver direct, jacobian exact)", "steps:", "5 x dt = 0.01 s",
+                "simulated time:", "wall time:", "time per step:", "assembly per step:", "Newton iterations:",
+                "linear iterations:", "Newton non-converged:", "solver fallbacks:", "max linear residual:"):
+        assert key in out
+
+
+def test_out_npz_and_overrides(capsys, scene_file, tmp_path):
+    """--out writes t, q, qd with frame 0 the initial state; --steps/--dt/--frame-every override the scene."""
+    out_file = tmp_path / "traj.npz"
+    code, out, _ = _run(capsys, "run", scene_file, "--steps", 7, "--dt", 0.02, "--frame-every", 3,
+                        "--integrator", "symplectic_euler", "--out", out_file)
+    assert code == 0
+    with np.load(out_file) as z:
+        t, q, qd = z["t"], z["q"], z["qd"]
+    np.testing.assert_allclose(t, [0.0, 0.06, 0.12, 0.14])
+    assert q.shape == (4, 2, 3) and qd.shape == (4, 2, 3)
+    np.testing.assert_array_equal(q[0], [[0, 0, 1], [0, 0, 0]])
+    np.testing.assert_array_equal(q[:, 0], np.tile([0, 0, 1], (4, 1)))
+    assert "symplectic_euler" in out and "7 x dt = 0.02 s" in out and "(4 frames)" in out
+
+
+def test_solver_options_override(capsys, scene_file):
+    """--solver/--jacobian/--newton-tol/--newton-maxiter/--rtol reach the implicit integrator."""
+    code, out, _ = _run(capsys, "run", scene_file, "--solver", "dense", "--jacobian", "symmetric",
+                        "--newton-tol", "1e-9", "--newton-maxiter", 3, "--rtol", "1e-8", "--quiet")
+    assert code == 0 and out == ""
+    code, out, _ = _run(capsys, "run", scene_file, "--solver", "dense", "--jacobian", "symmetric", "--steps", 1)
+    assert "linear solver dense, jacobian symmetric" in out
+
+
+def test_duration_and_default_steps(capsys, tmp_path):
+    """--duration sets ceil(T/dt) steps; without any step count the default (100) is used."""
+    f = tmp_path / "nosteps.yaml"
+    f.write_text(SCENE.replace(", steps: 5", ""))
+    code, out, _ = _run(capsys, "run", f, "--duration", 0.035)
+    assert code == 0 and "4 x dt" in out
+    code, out, _ = _run(capsys, "run", f, "--integrator", "explicit_euler")
+    assert code == 0 and "100 x dt" in out
+
+
+@pytest.mark.parametrize("argv, fragment", [
+    (["run", "missing.yaml"], "missing.yaml: no such file"),
+    (["run", "{scene}", "--integrator", "nope"], "solver.type: unknown integrator 'nope'; choose one of"),
+    (["run", "{scene}", "--solver", "magic"], "unknown linear solver 'magic'"),
+    (["run", "{scene}", "--jacobian", "bad"], "solver.jacobian: unknown jacobian mode 'bad'"),
+    (["run", "{bad}"], "springs[0].stiffness: must be >= 0, got -1"),
+    (["run", "{syntax}"], "YAML syntax error at line"),
+])
+def test_user_errors_exit_2_one_line(capsys, scene_file, tmp_path, argv, fragment):
+    """User errors print one line 'springsim: error: ...' on stderr, no traceback, and exit 2."""
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(SCENE.replace("stiffness: 100", "stiffness: -1"))
+    syntax = tmp_path / "syntax.yaml"
+    syntax.write_text("solver: {type: x\n  particles: [")
+    argv = [a.format(scene=scene_file, bad=bad, syntax=syntax) for a in argv]
+    code, out, err = _run(capsys, *argv)
+    assert code == 2 and out == ""
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("springsim: error: ") and fragment in lines[0], err
+    assert "Traceback" not in err
+
+
+def test_bad_option_values_exit_2(capsys, scene_file):
+    """Invalid option values (negative dt, non-integer steps) are argparse usage errors with status 2."""
+    for argv in (["--dt", "-1"], ["--steps", "x"], ["--frame-every", "0"], ["--steps", "2", "--duration", "1"]):
+        code, _, err = _run(capsys, "run", scene_file, *argv)
+        assert code == 2 and "Traceback" not in err
+
+
+def _fake_simulate(exc_type):
+    def fake(model, integrator, dt, steps, **kwargs):
+        from springsim.driver import Trajectory
+
+        q0 = model.particle_q[None].copy()
+        traj = Trajectory(np.array([0.0]), q0, np.zeros_like(q0))
+        raise exc_type("stopped at step 3", traj, step=3)
+    return fake
+
+
+def test_blow_up_saves_finite_frames(capsys, tmp_path):
+    """A blow-up prints the message, saves the finite frames to --out, says so and exits 1."""
+    f = tmp_path / "stiff.yaml"
+    f.write_text(SCENE.replace("implicit_euler", "explicit_euler").replace("stiffness: 100", "stiffness: 1.0e9")
+                 .replace("steps: 5", "steps: 400"))
+    out_file = tmp_path / "blow.npz"
+    code, _, err = _run(capsys, "run", f, "--out", out_file)
+    assert code == 1 and "blew up" in err and f"to {out_file}" in err and "Traceback" not in err
+    with np.load(out_file) as z:
+        assert np.all(np.isfinite(z["q"])) and z["q"].shape[0] == z["t"].shape[0] >= 1
+
+
+def test_interrupt_saves_frames_exit_130(capsys, scene_file, tmp_path, monkeypatch):
+    """Ctrl-C (SimulationInterrupted) saves the frames so far, says so and exits 130."""
+    from springsim import driver
+
+    monkeypatch.setattr(driver, "simulate", _fake_simulate(driver.SimulationInterrupted))
+    out_file = tmp_path / "int.npz"
+    code, _, err = _run(capsys, "run", scene_file, "--out", out_file)
+    assert code == 130 and "interrupted" in err and "saved 1 finite frame" in err
+    assert out_file.exists()
+    monkeypatch.setattr(driver, "simulate", _fake_simulate(SimulationError))
+    code, _, err = _run(capsys, "run", scene_file)
+    assert code == 1 and "stopped at step 3" in err
+
+
+def test_progress_bar_draws_on_a_stream():
+    """The progress bar stays silent before its delay, then draws with carriage returns and ends its line."""
+    import io
+
+    s = io.StringIO()
+    bar = cli.ProgressBar(s, delay=1e9)
+    bar(1, 10)
+    assert s.getvalue() == ""
+    bar = cli.ProgressBar(s, delay=0.0, interval=0.0)
+    bar(5, 10)
+    bar.close()
+    assert s.getvalue().startswith("\r[") and "5/10" in s.getvalue() and s.getvalue().endswith("\n")
+
+
+def test_command_registry(capsys):
+    """A command added to COMMANDS (one line) gets its own subparser and exit status."""
+    seen = {}
+    cmd = cli.Command(lambda p: p.add_argument("x"), lambda a: seen.setdefault("x", a.x) and 0, "echo")
+    cli.COMMANDS["echo-test"] = cmd
+    try:
+        assert cli.main(["echo-test", "hello"]) == 0 and seen == {"x": "hello"}
+    finally:
+        del cli.COMMANDS["echo-test"]
+
+
+def test_python_dash_m_entry_point(tmp_path):
+    """``python -m springsim run`` works as a real process: exit 0 with a summary, exit 2 on a bad scene."""
+    ok = subprocess.run([sys.executable, "-m", "springsim", "run", SPRING, "--steps", "3"],
+                        capture_output=True, text=True, timeout=120)
+    assert ok.returncode == 0 and "particles:" in ok.stdout, ok.stderr
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("solver: [")
+    err = subprocess.run([sys.executable, "-m", "springsim", "run", str(bad)], capture_output=True, text=True,
+                         timeout=120)
+    assert err.returncode == 2 and err.stderr.count("\n") == 1 and "Traceback" not in err.stderr
