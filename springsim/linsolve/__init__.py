@@ -4,16 +4,25 @@ from __future__ import annotations
 
 from ..errors import SceneError
 from ._base import LinearSolver, LinearSolveResult, relative_residual
+from .amg_cg import LinearSolverAMGCG
+from .auto import LinearSolverAuto
+from .cg import LinearSolverCG
 from .dense import LinearSolverDense
 from .direct import LinearSolverDirect
+from .krylov import LinearSolverAMGGMRES
 
-__all__ = ["LINEAR_SOLVERS", "LinearSolver", "LinearSolveResult", "LinearSolverDense", "LinearSolverDirect",
+__all__ = ["LINEAR_SOLVERS", "LinearSolver", "LinearSolverAMGCG", "LinearSolverAMGGMRES", "LinearSolverAuto",
+           "LinearSolverCG", "LinearSolveResult", "LinearSolverDense", "LinearSolverDirect",
            "make_linear_solver", "relative_residual"]
 
 #: Registry: name -> class.
 LINEAR_SOLVERS: dict[str, type[LinearSolver]] = {
     "dense": LinearSolverDense,
     "direct": LinearSolverDirect,
+    "cg": LinearSolverCG,
+    "amg-cg": LinearSolverAMGCG,
+    "amg-gmres": LinearSolverAMGGMRES,
+    "auto": LinearSolverAuto,
 }
 
 

@@ -1,0 +1,120 @@
+"""Benchmark cloth (issue 4): time per step, assembly, linear solve, iterations, memory.
+
+Usage::
+
+    python benchmarks/cloth_grid.py --n 128 --steps 30 --warmup 9 --integrator linearized_implicit \
+        --solver amg-cg --rtol 1e-6 [--jacobian spd] [--json benchmarks/results/cloth_128.json]
+
+Runs :func:`springsim.scene.gallery.benchmark_cloth` (n x n particles, edge y = 0 pinned,
+h = 1/60 s) from rest. The first ``--warmup`` steps (symbolic phase, first AMG setup,
+the nearly undeformed start) are reported separately; ``step_s``, ``assembly_s``,
+``solve_s`` and ``iterations`` are medians over the remaining steps (with the default
+``--steps 30 --warmup 9`` that is steps 10-30 of the fall). ``max_relres`` is the largest
+relative residual of any linear solve; ``peak_rss_mb`` is ``ru_maxrss`` of the process.
+``--compare-direct K`` also runs ``direct`` (same Jacobian mode) for K steps on the same
+cloth and reports the relative difference of the positions after K steps (the error the
+solver tolerance introduces).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from springsim.integrators import make_integrator
+from springsim.scene.gallery import BENCHMARK_DT, benchmark_cloth
+
+
+def run(n, steps, integrator, solver, rtol, jacobian, warmup, solver_options=None):
+    """Run the benchmark; returns (summary dict, final state)."""
+    t0 = time.perf_counter()
+    model = benchmark_cloth(n)
+    build_s = time.perf_counter() - t0
+    opts = dict(solver_options or {})
+    if rtol is not None and solver not in ("dense", "direct"):
+        opts["rtol"] = rtol
+    t0 = time.perf_counter()
+    integ = make_integrator(integrator, model, solver=solver, jacobian=jacobian, solver_options=opts)
+    symbolic_s = time.perf_counter() - t0
+    s0, s1 = model.state(), model.state()
+    rows = []
+    for _ in range(steps):
+        t = time.perf_counter()
+        st = integ.step(s0, s1, BENCHMARK_DT)
+        wall = time.perf_counter() - t
+        s0, s1 = s1, s0
+        rows.append(dict(step_s=wall, assembly_s=st.assembly_s, solve_s=st.solve_s, iterations=st.linear_iterations,
+                         relres=st.linear_residual, fallbacks=list(st.fallbacks)))
+        if not np.all(np.isfinite(s0.particle_q)):
+            raise SystemExit(f"blew up at step {len(rows)}")
+    body = rows[warmup:] or rows
+    med = lambda k: float(np.median([r[k] for r in body]))  # noqa: E731
+    summary = dict(
+        n=n, particles=model.particle_count, springs=model.spring_count, dofs=int(model.dof_count),
+        free_dofs=int(3 * model.free_particles.size), steps=steps, warmup=warmup, integrator=integrator,
+        solver=solver, jacobian=integ.jacobian, rtol=rtol,
+        step_s=med("step_s"), assembly_s=med("assembly_s"), solve_s=med("solve_s"), iterations=med("iterations"),
+        max_iterations=int(max(r["iterations"] for r in body)),
+        max_relres=float(max(r["relres"] for r in rows)),
+        warmup_step_s=[r["step_s"] for r in rows[:warmup]], build_s=build_s, symbolic_s=symbolic_s,
+        fallbacks=sum(len(r["fallbacks"]) for r in rows),
+        peak_rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+        solver_info={k: v for k, v in getattr(getattr(integ.solver, "amg", None), "describe", dict)().items()},
+    )
+    return summary, s0
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--n", type=int, default=64)
+    p.add_argument("--steps", type=int, default=30)
+    p.add_argument("--warmup", type=int, default=None, help="steps excluded from medians (default min(9, steps-1))")
+    p.add_argument("--integrator", default="linearized_implicit")
+    p.add_argument("--solver", default="amg-cg")
+    p.add_argument("--rtol", type=float, default=None)
+    p.add_argument("--jacobian", default=None, choices=["exact", "symmetric", "spd"])
+    p.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
+                   help="extra solver option (value parsed as JSON when possible), e.g. near_nullspace=translations")
+    p.add_argument("--compare-direct", type=int, default=0, metavar="K")
+    p.add_argument("--json", default=None)
+    a = p.parse_args(argv)
+    warmup = min(9, a.steps - 1) if a.warmup is None else a.warmup
+    opts = {}
+    for kv in a.option:
+        k, v = kv.split("=", 1)
+        try:
+            opts[k] = json.loads(v)
+        except json.JSONDecodeError:
+            opts[k] = v
+    summary, state = run(a.n, a.steps, a.integrator, a.solver, a.rtol, a.jacobian, warmup, opts)
+    if a.compare_direct:
+        s_it, q_it = run(a.n, a.compare_direct, a.integrator, a.solver, a.rtol, a.jacobian, 0, opts)
+        s_d, q_d = run(a.n, a.compare_direct, a.integrator, "direct", None, summary["jacobian"], 0)
+        u_it = q_it.particle_q - benchmark_cloth(a.n).particle_q
+        diff = np.linalg.norm(q_it.particle_q - q_d.particle_q) / max(np.linalg.norm(q_d.particle_q
+                                                                                   - benchmark_cloth(a.n).particle_q),
+                                                                    1e-300)
+        summary.update(compare_steps=a.compare_direct, rel_diff_vs_direct=float(diff),
+                       direct_step_s=s_d["step_s"], displacement_norm=float(np.linalg.norm(u_it)))
+    keys = ["n", "particles", "springs", "dofs", "steps", "solver", "jacobian", "rtol", "step_s", "assembly_s",
+            "solve_s", "iterations", "max_iterations", "max_relres", "fallbacks", "peak_rss_mb"]
+    if a.compare_direct:
+        keys += ["rel_diff_vs_direct", "direct_step_s"]
+    print(" | ".join(f"{k}" for k in keys))
+    print(" | ".join(f"{summary[k]:.4g}" if isinstance(summary[k], float) else f"{summary[k]}" for k in keys))
+    print(f"warm-up steps (s): {', '.join(f'{t:.3f}' for t in summary['warmup_step_s'])}; "
+          f"model build {summary['build_s']:.3f} s, symbolic {summary['symbolic_s']:.3f} s; AMG {summary['solver_info']}")
+    if a.json:
+        Path(a.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(a.json).write_text(json.dumps(summary, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

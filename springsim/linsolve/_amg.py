@@ -1,0 +1,209 @@
+"""Smoothed-aggregation AMG hierarchies for the implicit system, and their reuse.
+
+Choices, measured on the benchmark cloth at n = 64 (12,096 DOFs), linearized implicit
+Euler, step 20 of the fall (stiff and deformed, ``h^2 k / m ~ 1e4``), CG to 1e-6
+(``benchmarks/cloth_grid.py``; see docs/solvers.md for the tables):
+
+* near-null space: the six rigid-body modes at the current positions (3 translations
+  + 3 rotations) need 10 CG iterations; the three translations (pyamg's default for
+  BSR 3x3, ``B=None``) 22; scalar aggregation (CSR, one constant) 239. Rotations are
+  near-null for springs (a rotated cloth has no elastic energy), as Tamstorf, Jones and
+  McCormick (2015) argue for cloth; so ``near_nullspace="rigid"`` is the default.
+* format: BSR 3x3 aggregates the three components of a particle together; with the
+  same six modes CSR needed 49 iterations against 10 for BSR.
+* smoother: block Gauss-Seidel on the 3x3 blocks, one forward sweep before and one
+  backward sweep after (a symmetric V-cycle, as CG needs): 20 iterations against 16 for
+  pyamg's symmetric sweeps, at half the smoothing work; Chebyshev degree 3 took 184
+  (its eigenvalue bound is poor on these stretched spectra).
+* prolongator: unsmoothed (plain) aggregation of the six modes (``smooth=None``): 24
+  iterations against 20 for Jacobi-smoothed SA, but the setup costs 0.04 s instead of
+  0.18 s and the coarse operators are sparser; with pyamg's candidate improvement
+  (``improve_candidates``, 4 Gauss-Seidel sweeps on each of the 6 candidates) off, as
+  the rigid modes are already the right ones (16 vs 17 iterations, setup halved).
+* coarse level: pyamg counts ``max_coarse`` in block rows (6x6 blocks below the finest
+  level), so the default 50 gives a coarsest level of at most ~300 DOFs, solved by a
+  dense pseudo-inverse (``pinv``): the coarse operator is exactly singular on the flat
+  cloth (rotation candidates with zero energy), where sparse LU fails.
+* reuse: on the falling cloth a hierarchy one time step old already needs 2-5x the
+  iterations of a fresh one (n = 32: 22, 59, 134, 245 iterations for hierarchies 1-4
+  steps old, against 9-14 fresh), while a setup costs about three iterations. A
+  Galerkin refresh with the old prolongator was worse still. So: the hierarchy is reused
+  for repeated solves with the same matrix and across matrices while a solve stays
+  within ``rebuild_factor * baseline + rebuild_slack`` iterations (``baseline`` = count
+  right after the build); a solve that exceeds it (or breaks down) is stopped there,
+  the hierarchy rebuilt and the solve continued from the iterate reached. After such a
+  stale rebuild the next ``cooldown`` matrices get a fresh hierarchy right away (no
+  wasted attempt), then reuse is tried again. In quasi-static phases (slow motion)
+  reuse holds for many steps.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+__all__ = ["AMGHierarchy", "rigid_body_modes", "translation_modes"]
+
+
+def rigid_body_modes(positions: np.ndarray) -> np.ndarray:
+    """The six rigid-body modes of particles at ``positions`` (F, 3) [m], as a (3F, 6) array.
+
+    Columns 0-2 are unit translations; 3-5 the infinitesimal rotations ``omega x (x - c)``
+    about the axes through the centroid ``c`` (centring keeps the columns well conditioned).
+    """
+    F = positions.shape[0]
+    B = np.zeros((F, 3, 6))
+    B[:, 0, 0] = B[:, 1, 1] = B[:, 2, 2] = 1.0
+    x, y, z = (positions - positions.mean(axis=0)).T
+    B[:, 0, 3], B[:, 1, 3] = -y, x     # about z
+    B[:, 1, 4], B[:, 2, 4] = -z, y     # about x
+    B[:, 0, 5], B[:, 2, 5] = z, -x     # about y
+    return B.reshape(3 * F, 6)
+
+
+def translation_modes(F: int) -> np.ndarray:
+    """The three unit translations of ``F`` particles, (3F, 3)."""
+    return np.tile(np.eye(3), (F, 1))
+
+
+class AMGHierarchy:
+    """Builds a pyamg smoothed-aggregation hierarchy and decides when to rebuild it.
+
+    Parameters
+    ----------
+    near_nullspace : {"rigid", "translations"}
+        Candidate vectors ``B`` (see the module notes).
+    fmt : {"bsr", "csr"}
+        Matrix format handed to pyamg.
+    symmetry : {"hermitian", "nonsymmetric"}
+        pyamg's symmetry flag (``"nonsymmetric"`` for GMRES-type solvers).
+    smoother : str
+        pyamg relaxation for pre- and post-smoothing (symmetric sweep).
+    max_coarse : int
+        Coarsest level size in block rows (pyamg's convention).
+    rebuild_factor, rebuild_slack : float, int
+        Stale when a solve needs more than ``rebuild_factor * baseline + rebuild_slack``
+        iterations, ``baseline`` being the count of the first solve after the last build.
+    reuse : bool
+        Keep the hierarchy across matrices with the same pattern (False: rebuild for every
+        new matrix).
+    cooldown : int
+        After a stale rebuild, build afresh for this many new matrices before trying reuse again.
+    sa_options : dict, optional
+        Extra keywords for :func:`pyamg.smoothed_aggregation_solver`.
+    """
+
+    def __init__(self, *, near_nullspace: str = "rigid", fmt: str = "bsr", symmetry: str = "hermitian",
+                 smoother: str = "block_gauss_seidel", max_coarse: int = 50, rebuild_factor: float = 2.0,
+                 rebuild_slack: int = 4, reuse: bool = True, cooldown: int = 4, sa_options: dict | None = None):
+        if near_nullspace not in ("rigid", "translations"):
+            raise ValueError(f"near_nullspace must be 'rigid' or 'translations', got {near_nullspace!r}")
+        if fmt not in ("bsr", "csr"):
+            raise ValueError(f"fmt must be 'bsr' or 'csr', got {fmt!r}")
+        self.near_nullspace = near_nullspace
+        self.fmt = fmt
+        self.symmetry = symmetry
+        self.smoother = smoother
+        self.max_coarse = int(max_coarse)
+        self.rebuild_factor = float(rebuild_factor)
+        self.rebuild_slack = int(rebuild_slack)
+        self.reuse = bool(reuse)
+        self.cooldown = int(cooldown)
+        self._skip = 0
+        self.version = None
+        self.stale_rebuilds = 0
+        self.sa_options = dict(sa_options or {})
+        self.ml = None
+        self.key = None
+        self.baseline: int | None = None
+        self.builds = 0
+        self._precond = None
+
+    def invalidate(self, stale: bool = False) -> None:
+        """Forget the hierarchy (the next :meth:`preconditioner` call rebuilds); ``stale``
+        also starts the cooldown during which new matrices get fresh hierarchies."""
+        self.ml = None
+        self.key = None
+        self.baseline = None
+        if stale:
+            self.stale_rebuilds += 1
+            self._skip = self.cooldown
+
+    def preconditioner(self, A):
+        """``(apply, setup_s, fresh)`` for the system ``A``: a V-cycle ``r -> M^-1 r``.
+
+        ``fresh`` is True when the hierarchy was (re)built for this call.
+        """
+        key = (id(A.pattern), A.shape) if A.pattern is not None else None
+        if self.ml is not None and key is not None and key == self.key:
+            if A.version == self.version:  # the very matrix the hierarchy was built for
+                return self._precond, 0.0, False
+            if self.reuse and self._skip == 0:
+                return self._precond, 0.0, False
+            self._skip = max(self._skip - 1, 0)
+        t0 = time.perf_counter()
+        self._build(A)
+        self.key = key
+        self.version = A.version
+        return self._precond, time.perf_counter() - t0, True
+
+    def _build(self, A):
+        import pyamg
+
+        # a snapshot: the assembler updates its matrix in place, and a hierarchy whose finest
+        # operator changed under it (with the old smoother diagonals and coarse levels) is
+        # no longer a symmetric positive definite preconditioner; CG then diverges
+        M = (A.bsr if self.fmt == "bsr" else A.tocsr()).copy()
+        F = A.shape[0] // 3
+        if self.near_nullspace == "rigid" and A.positions is not None and F >= 2:
+            B = rigid_body_modes(np.asarray(A.positions, dtype=np.float64))
+        else:
+            B = translation_modes(F)
+        if "gauss_seidel" in self.smoother:
+            pre, post = (self.smoother, {"sweep": "forward"}), (self.smoother, {"sweep": "backward"})
+        else:
+            pre = post = (self.smoother, {})
+        opts = dict(B=B, symmetry=self.symmetry, max_coarse=self.max_coarse, coarse_solver="pinv",
+                    presmoother=pre, postsmoother=post, smooth=None, improve_candidates=None)
+        opts.update(self.sa_options)
+        self.ml = pyamg.smoothed_aggregation_solver(M, **opts)
+        ml = self.ml
+
+        vcycle = getattr(ml, "_MultilevelSolver__solve", None)
+
+        def apply(r):
+            if vcycle is None or len(ml.levels) == 1:
+                return ml.solve(r, x0=np.zeros_like(r), maxiter=1, tol=1e-300, cycle="V")
+            # one V-cycle from zero; MultilevelSolver.solve would add two residual matvecs
+            x = np.zeros_like(r)
+            vcycle(0, x, r, "V", 1)
+            return x
+
+        apply(np.ones(A.shape[0]))  # pyamg finishes smoother and coarse-LU setup lazily on first use
+        self._precond = apply
+        self.baseline = None
+        self.builds += 1
+
+    def record(self, iterations: int, fresh: bool, ok: bool) -> None:
+        """Remember the iteration count right after a build (the stale-signal baseline)."""
+        if fresh and ok:
+            self.baseline = int(iterations)
+
+    def budget(self, maxiter: int, fresh: bool) -> int:
+        """Iterations a solve may take with this hierarchy before it is declared stale.
+
+        A reused hierarchy gets ``rebuild_factor * baseline + rebuild_slack`` (the stale
+        signal); a fresh one, or one without a baseline yet, the full ``maxiter``.
+        """
+        if fresh or self.baseline is None:
+            return maxiter
+        return min(maxiter, int(self.rebuild_factor * self.baseline + self.rebuild_slack))
+
+    def describe(self) -> dict:
+        """Level sizes and complexity of the current hierarchy (for statistics)."""
+        if self.ml is None:
+            return {}
+        return {"levels": [int(lv.A.shape[0]) for lv in self.ml.levels],
+                "operator_complexity": float(self.ml.operator_complexity()), "builds": self.builds,
+                "stale_rebuilds": self.stale_rebuilds}

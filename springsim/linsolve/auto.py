@@ -1,0 +1,68 @@
+"""``auto``: picks a solver by system size, symmetry and definiteness.
+
+Rule (crossover measured with ``benchmarks/cloth_grid.py``, linearized implicit Euler
+on the benchmark cloth, steps 10-30, rtol 1e-6; see docs/solvers.md):
+
+* ``3F <= DIRECT_MAX_DOFS``: ``direct`` (SuperLU). Below the crossover factorisation
+  beats an AMG setup plus iterations, and it is exact for indefinite and
+  non-symmetric matrices alike.
+* larger and symmetric (``symmetric``/``spd`` modes, or undamped ``exact``):
+  ``amg-cg``. If the matrix is indefinite CG detects it and falls back to ``direct``.
+* larger and non-symmetric (``exact`` with damping): ``amg-gmres``.
+
+``needs_spd`` is True, so implicit integrators give ``auto`` the ``spd`` mode by
+default (pass ``jacobian="exact"`` for Newton's quadratic convergence on small systems).
+"""
+
+from __future__ import annotations
+
+from ._base import LinearSolver
+from .amg_cg import LinearSolverAMGCG
+from .direct import LinearSolverDirect
+from .krylov import LinearSolverAMGGMRES
+
+__all__ = ["LinearSolverAuto", "DIRECT_MAX_DOFS"]
+
+#: Measured crossover [DOFs]: below it ``direct`` is faster per step than ``amg-cg``.
+DIRECT_MAX_DOFS = 6000
+
+
+class LinearSolverAuto(LinearSolver):
+    """Chooses ``direct``, ``amg-cg`` or ``amg-gmres`` per solve (sub-solvers are kept, so
+    AMG hierarchies are reused).
+
+    Parameters
+    ----------
+    rtol, atol, maxiter
+        Passed to the chosen solver.
+    direct_max_dofs : int
+        Size up to which ``direct`` is used (default :data:`DIRECT_MAX_DOFS`).
+    fallback : {"direct", "none"}
+        Passed to the iterative solvers.
+    """
+
+    name = "auto"
+    needs_spd = True
+
+    def __init__(self, *, rtol: float = 1e-6, atol: float = 0.0, maxiter: int | None = None,
+                 direct_max_dofs: int = DIRECT_MAX_DOFS, fallback: str = "direct"):
+        super().__init__(rtol=rtol, atol=atol, maxiter=maxiter)
+        self.direct_max_dofs = int(direct_max_dofs)
+        self._solvers = {
+            "direct": LinearSolverDirect(rtol=self.rtol),
+            "amg-cg": LinearSolverAMGCG(rtol=self.rtol, atol=self.atol, maxiter=maxiter, fallback=fallback),
+            "amg-gmres": LinearSolverAMGGMRES(rtol=self.rtol, atol=self.atol, maxiter=maxiter, fallback=fallback),
+        }
+
+    def choose(self, A) -> str:
+        """Name of the solver used for ``A``."""
+        if A.shape[0] <= self.direct_max_dofs:
+            return "direct"
+        return "amg-cg" if A.symmetric else "amg-gmres"
+
+    def _solve(self, A, b, x0):
+        choice = self.choose(A)
+        res = self._solvers[choice].solve(A, b, x0=x0)
+        res.method = f"auto:{res.method}"
+        res.info = dict(res.info, auto_choice=choice)
+        return res
