@@ -14,9 +14,10 @@ rtol 1e-10). Three sweeps:
     every implicit integrator with every solver in :data:`springsim.linsolve.LINEAR_SOLVERS`
     at a ladder of relative tolerances (direct solvers once), at ``h = 1/60`` s.
 
-The default run is bounded to a few minutes: the full dt ladder on the 8 x 8 cloth
-and the scenes, down to 1/960 s on 16 x 16 and 1/480 s on 32 x 32; on cases with
-more than 300 particles only implicit Euler sweeps the solvers (and no Newton sweep).
+The default run is bounded to a few minutes: time steps down to 1/1920 s on the
+8 x 8 cloth and the scenes, 1/960 s on 16 x 16 and 1/480 s on 32 x 32, rtol ladder
+1e-2, 1e-4, 1e-6, 1e-10, the solver sweep with implicit Euler only, no Newton sweep
+on 32 x 32. ``--full`` lifts all of these (much longer).
 
 Per run: wall time per simulated second, RMS/max position error relative to the
 scene size, stability, energy drift, Newton and linear iterations. Observed orders
@@ -27,6 +28,7 @@ Usage::
 
     python benchmarks/speed_vs_error.py            # default: a few minutes on 2 cores
     python benchmarks/speed_vs_error.py --quick    # seconds (used by the tests)
+    python benchmarks/speed_vs_error.py --full     # the whole ladder (1/30 ... 1/3840 s) everywhere; long
 """
 
 from __future__ import annotations
@@ -114,8 +116,11 @@ def _run(case, ref_q, e_ref_drift, integrator: str, dt: float, *, sweep: str, me
 
 
 def run_case(case, *, dts, newton_tols, solver_rtols, solver_dt: float = 1 / 60, ref_method: str = "auto",
-             sweeps=("dt", "newton", "solver"), log=print) -> list[dict]:
-    """All sweeps for one case; returns the result rows."""
+             sweeps=("dt", "newton", "solver"), solver_integrators=None, log=print) -> list[dict]:
+    """All sweeps for one case; returns the result rows.
+
+    ``solver_integrators`` limits the solver sweep to these integrators (default: every implicit one).
+    """
     from springsim.forces import make_force_terms
     from springsim.integrators import INTEGRATORS
     from springsim.linsolve import LINEAR_SOLVERS
@@ -142,8 +147,8 @@ def run_case(case, *, dts, newton_tols, solver_rtols, solver_dt: float = 1 / 60,
                                  method=f"implicit_euler tol={tol:g}", newton_tol=tol, newton_maxiter=20))
     if "solver" in sweeps:
         for name, cls in INTEGRATORS.items():
-            if not cls.implicit or (case.model.particle_count > 300 and name != "implicit_euler"):
-                continue  # bounded default run: on large cases only implicit Euler sweeps the solvers
+            if not cls.implicit or (solver_integrators is not None and name not in solver_integrators):
+                continue
             for sname, scls in LINEAR_SOLVERS.items():
                 if sname == "dense" and case.model.particle_count > 300:
                     continue
@@ -214,7 +219,9 @@ def pareto_plot(rows: list[dict], case: str, out_png, *, dpi: int = 80) -> bool:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--quick", action="store_true", help="tiny run (8x8 cloth, spring scene, 3 time steps)")
+    p.add_argument("--quick", action="store_true", help="tiny run (4x4 cloth, spring scene, 2 time steps)")
+    p.add_argument("--full", action="store_true",
+                   help="unbounded run: dt down to 1/3840 s everywhere, every implicit integrator in the solver sweep")
     p.add_argument("--cloth", type=int, nargs="*", default=None, help="cloth sizes n (default 8 16 32)")
     p.add_argument("--scenes", nargs="*", default=None, help="shipped scenes (default spring stiff_chain three_body)")
     p.add_argument("--horizon", type=float, default=0.5, help="simulated time [s]")
@@ -231,15 +238,18 @@ def main(argv=None) -> int:
         cloths = [8, 16, 32] if a.cloth is None else a.cloth
         scenes = list(SCENE_NAMES) if a.scenes is None else a.scenes
         dts, ntols, rtols, horizon = DT_LADDER, NEWTON_TOLS, SOLVER_RTOLS, a.horizon
+        if not a.full:
+            dts, rtols = [d for d in dts if d > 1 / 3000], [1e-2, 1e-4, 1e-6, 1e-10]
     cases = [scene_case(s, horizon) for s in scenes] + [benchmark_case(n, horizon) for n in cloths]
     rows = []
     for case in cases:
         ladder = dts
-        if case.name.startswith("cloth") and not a.quick:
+        if case.name.startswith("cloth") and not (a.quick or a.full):
             # bound the default run: the finest steps only on the small cloths
             n = int(case.name[5:])
             ladder = [d for d in dts if d >= {8: 0, 16: 1 / 960}.get(n, 1 / 480) - 1e-15]
         rows += run_case(case, dts=ladder, newton_tols=ntols, solver_rtols=rtols, ref_method=a.ref_method,
+                         solver_integrators=None if (a.full or a.quick) else ("implicit_euler",),
                          sweeps=("dt", "newton", "solver") if not case.name.startswith("cloth") or
                          case.name in ("cloth4", "cloth8", "cloth16") else ("dt", "solver"))
     ords = orders(rows)
