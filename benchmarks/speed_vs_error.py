@@ -187,29 +187,32 @@ def orders(rows: list[dict]) -> list[dict]:
 
 
 def pareto_plot(rows: list[dict], case: str, out_png, *, dpi: int = 80) -> bool:
-    """Log-log plot of wall time per simulated second against RMS error, one curve per method."""
+    """Log-log plot of wall time per simulated second against RMS error, one curve per method.
+
+    Solid lines with dots: the dt ladder per integrator; dashed: implicit Euler per Newton
+    tolerance; crosses: the solver/rtol sweep at h = 1/60 s.
+    """
     plt = pyplot()
     if plt is None:
         return False
-    fig, ax = plt.subplots(figsize=(6.4, 4.4))
-    methods = dict.fromkeys(r["method"] for r in rows if r["case"] == case and r["sweep"] in ("dt", "newton"))
-    for m in methods:
-        rr = [r for r in rows if r["case"] == case and r["method"] == m and r["sweep"] in ("dt", "newton")
-              and r["status"].startswith("ok")]
-        if not rr:
-            continue
-        rr.sort(key=lambda r: -r["dt"])
-        ax.loglog([r["err_rms"] for r in rr], [r["wall_per_sim_s"] for r in rr], "o-", ms=3, lw=1, label=m)
-    sv = [r for r in rows if r["case"] == case and r["sweep"] == "solver" and r["status"].startswith("ok")]
-    for m in dict.fromkeys(r["method"] for r in sv):
-        rr = [r for r in sv if r["method"] == m]
-        ax.loglog([r["err_rms"] for r in rr], [r["wall_per_sim_s"] for r in rr], "x", ms=5,
-                  label=f"{m} (rtol ladder, h=1/60)")
+    fig, ax = plt.subplots(figsize=(8.4, 4.6))
+    colors = plt.get_cmap("tab20").colors
+    styles = {"dt": dict(marker="o", ls="-", lw=1.4, ms=3), "newton": dict(marker="d", ls="--", lw=0.8, ms=3),
+              "solver": dict(marker="x", ls=":", lw=0.8, ms=6)}
+    k = 0
+    for sweep in ("dt", "newton", "solver"):
+        rr_s = [r for r in rows if r["case"] == case and r["sweep"] == sweep and r["status"].startswith("ok")]
+        for m in dict.fromkeys(r["method"] for r in rr_s):
+            rr = sorted((r for r in rr_s if r["method"] == m), key=lambda r: (-r["dt"], str(r["rtol"])))
+            label = m if sweep != "solver" else f"{m} (rtol ladder, h=1/60)"
+            ax.loglog([r["err_rms"] for r in rr], [r["wall_per_sim_s"] for r in rr], color=colors[k % 20],
+                      label=label, **styles[sweep])
+            k += 1
     ax.set_xlabel("final position error, RMS / scene size")
     ax.set_ylabel("wall time per simulated second [s]")
-    ax.set_title(f"speed vs error: {case}")
+    ax.set_title(f"speed vs error: {case} (lower left is better)")
     ax.grid(True, which="major", alpha=0.3)
-    ax.legend(fontsize=6, ncol=2)
+    ax.legend(fontsize=6.5, loc="center left", bbox_to_anchor=(1.01, 0.5), frameon=False)
     fig.tight_layout()
     Path(out_png).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out_png, dpi=dpi)
