@@ -62,7 +62,7 @@ class LinearSolverAuto(LinearSolver):
 
     def _solve(self, A, b, x0):
         choice = self.choose(A)
-        res = self._solvers[choice].solve(A, b, x0=x0)
+        res = self._solvers[choice]._solve(A, b, x0)  # A is already wrapped by solve()
         res.method = f"auto:{res.method}"
         res.info = dict(res.info, auto_choice=choice)
         return res

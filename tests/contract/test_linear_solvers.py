@@ -1,0 +1,147 @@
+"""Contract tests of every registered linear solver (parametrised over LINEAR_SOLVERS).
+
+Systems come from real scenes: the 8 x 8 benchmark cloth (damped, deformed and
+compressed) assembled in the three Jacobian modes: ``spd`` (symmetric positive
+definite), ``symmetric`` at a stiff compressed state (symmetric indefinite) and
+``exact`` with damping (non-symmetric). Each solver must match the dense solve within
+its tolerance, or report the documented fallback.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+from springsim.assembly import SystemAssembler
+from springsim.forces import make_force_terms
+from springsim.linsolve import LINEAR_SOLVERS, LinearSolveResult, make_linear_solver
+from springsim.linsolve._krylov import LinearSolverFallbackWarning
+from springsim.scene.gallery import benchmark_cloth
+
+SOLVERS = sorted(LINEAR_SOLVERS)
+KINDS = ["spd", "indefinite", "nonsymmetric"]
+RTOL = 1e-9
+
+
+def _system(kind: str):
+    """(SystemMatrix, b, dense A) of the given kind from the damped 8 x 8 cloth."""
+    rng = np.random.default_rng(2024)
+    model = benchmark_cloth(8, kd=2.0)
+    q = 0.8 * model.particle_q + rng.uniform(-0.01, 0.01, model.particle_q.shape)   # compressed
+    qd = rng.uniform(-1.0, 1.0, q.shape)
+    asm = SystemAssembler(model, make_force_terms(model))
+    h = 1.0 / 60.0
+    mode, a = {"spd": ("spd", h * h), "indefinite": ("symmetric", 50 * h * h), "nonsymmetric": ("exact", h * h)}[kind]
+    A = asm.assemble(q, qd, a, h, mode)
+    b = rng.standard_normal(A.shape[0])
+    return A, b, A.toarray()
+
+
+_CACHE: dict = {}
+
+
+def _cached(kind):
+    if kind not in _CACHE:
+        _CACHE[kind] = _system(kind)
+    return _CACHE[kind]
+
+
+def test_system_kinds_are_what_they_claim():
+    """The fixtures are SPD, symmetric indefinite and non-symmetric respectively."""
+    A, _, D = _cached("spd")
+    assert A.symmetric and np.linalg.eigvalsh(D).min() > 0
+    A, _, D = _cached("indefinite")
+    assert A.symmetric and np.allclose(D, D.T) and np.linalg.eigvalsh(D).min() < 0
+    A, _, D = _cached("nonsymmetric")
+    assert not A.symmetric and np.abs(D - D.T).max() > 1e-6 * np.abs(D).max()
+
+
+@pytest.mark.parametrize("kind", KINDS)
+@pytest.mark.parametrize("name", SOLVERS, ids=[f"cloth8-{s}" for s in SOLVERS])
+def test_solution_matches_dense_or_falls_back(name, kind):
+    """Each solver matches the dense solve within its tolerance, or reports a fallback."""
+    A, b, D = _cached(kind)
+    x_ref = np.linalg.solve(D, b)
+    solver = make_linear_solver(name, rtol=RTOL)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        res = solver.solve(A, b)
+    assert isinstance(res, LinearSolveResult)
+    assert res.converged and np.all(np.isfinite(res.x))
+    assert res.residual <= 10 * RTOL
+    assert np.linalg.norm(D @ res.x - b) <= 10 * RTOL * np.linalg.norm(b)
+    cond = np.linalg.cond(D)
+    assert np.linalg.norm(res.x - x_ref) <= 10 * cond * RTOL * np.linalg.norm(x_ref)
+    assert res.setup_s >= 0 and res.solve_s >= 0 and res.iterations >= 0
+    assert name in res.method
+    if res.fallback is not None:  # a fallback is reported in method, reason and a warning
+        assert "->direct" in res.method
+        assert any(issubclass(w.category, LinearSolverFallbackWarning) for w in caught)
+    if kind == "spd" and name in ("cg", "amg-cg", "amg-gmres"):
+        assert res.fallback is None and res.iterations > 0
+
+
+@pytest.mark.parametrize("name", ["cg", "amg-cg"], ids=["cloth8-cg", "cloth8-amg-cg"])
+def test_cg_breakdown_is_reported_without_fallback(name):
+    """With fallback='none', CG on an indefinite matrix reports breakdown and converged=False."""
+    A, b, _ = _cached("indefinite")
+    res = make_linear_solver(name, rtol=RTOL, fallback="none").solve(A, b)
+    assert not res.converged
+    assert res.fallback is not None
+    assert any(k in res.fallback for k in ("curvature", "indefinite", "non-convergence", "singular"))
+    assert res.method == name
+
+
+@pytest.mark.parametrize("name", SOLVERS, ids=[f"cloth8-{s}" for s in SOLVERS])
+def test_zero_rhs_and_plain_matrices(name):
+    """Zero right-hand side gives zero; a plain scipy matrix is accepted."""
+    A, b, D = _cached("spd")
+    solver = make_linear_solver(name, rtol=RTOL)
+    res = solver.solve(A, np.zeros_like(b))
+    assert np.all(res.x == 0)
+    res = solver.solve(A.tocsr().copy(), b)
+    assert np.linalg.norm(D @ res.x - b) <= 10 * RTOL * np.linalg.norm(b)
+
+
+@pytest.mark.parametrize("name", ["cg", "amg-cg", "amg-gmres"])
+def test_warm_start_used_only_when_valid(name):
+    """A good x0 is used (fewer iterations); a bad one (residual > |b|) is ignored."""
+    A, b, D = _cached("spd")
+    x_ref = np.linalg.solve(D, b)
+    solver = make_linear_solver(name, rtol=1e-8)
+    cold = solver.solve(A, b)
+    warm = solver.solve(A, b, x0=x_ref + 1e-6 * np.abs(x_ref).max())
+    assert warm.info["warm_start"] and warm.iterations < cold.iterations
+    bad = solver.solve(A, b, x0=1e6 * np.ones_like(b))
+    assert not bad.info["warm_start"] and bad.converged
+    assert np.linalg.norm(bad.x - x_ref) <= 1e-6 * np.linalg.norm(x_ref) * np.linalg.cond(D)
+
+
+def test_tolerance_is_configurable():
+    """A looser rtol gives fewer iterations and a residual within it."""
+    A, b, _ = _cached("spd")
+    loose = make_linear_solver("amg-cg", rtol=1e-3).solve(A, b)
+    tight = make_linear_solver("amg-cg", rtol=1e-10).solve(A, b)
+    assert loose.residual <= 1e-3 and tight.residual <= 1e-10
+    assert loose.iterations < tight.iterations
+
+
+def test_needs_spd_flags():
+    """CG-type solvers ask integrators for the spd Jacobian mode; direct methods do not."""
+    assert LINEAR_SOLVERS["cg"].needs_spd and LINEAR_SOLVERS["amg-cg"].needs_spd
+    assert not LINEAR_SOLVERS["direct"].needs_spd and not LINEAR_SOLVERS["dense"].needs_spd
+    assert not LINEAR_SOLVERS["amg-gmres"].needs_spd
+
+
+def test_auto_choice_by_size_and_symmetry():
+    """auto uses direct below its crossover, amg-cg for symmetric and amg-gmres for non-symmetric above."""
+    A, b, _ = _cached("nonsymmetric")
+    S, bs, _ = _cached("spd")
+    small = make_linear_solver("auto")
+    assert small.choose(A) == "direct" and small.choose(S) == "direct"
+    big = make_linear_solver("auto", direct_max_dofs=10, rtol=RTOL)
+    assert big.choose(A) == "amg-gmres" and big.choose(S) == "amg-cg"
+    res = big.solve(S, bs)
+    assert res.method == "auto:amg-cg" and res.converged
