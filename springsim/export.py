@@ -2,8 +2,8 @@
 
 Small ASCII writers in numpy, no extra dependency. Every frame becomes one file
 ``<stem>_<frame:04d>.<ext>`` holding the particle positions, the springs as line
-segments and, for a cloth (``model.metadata['cloth_shape'] = (nx, ny)``), the grid
-quads as faces. VTK frames come with a ``<stem>.vtk.series`` JSON file (ParaView
+segments and, for cloths (``model.metadata['cloth_blocks']`` or ``['cloth_shape']``),
+the grid quads as faces. VTK frames come with a ``<stem>.vtk.series`` JSON file (ParaView
 5.5+) carrying the frame times; ParaView also groups numbered files by itself.
 """
 
@@ -20,14 +20,15 @@ __all__ = ["EXPORT_FORMATS", "cloth_quads", "write_vtk", "write_obj", "write_ply
 
 
 def cloth_quads(model) -> np.ndarray:
-    """Quads (Q, 4) of a cloth grid from ``model.metadata['cloth_shape']``, counter-clockwise; (0, 4) otherwise."""
-    shape = model.metadata.get("cloth_shape") if isinstance(model.metadata, dict) else None
-    if shape is None:
-        return np.zeros((0, 4), dtype=np.int64)
-    nx, ny = int(shape[0]), int(shape[1])
-    idx = np.arange(nx * ny, dtype=np.int64).reshape(ny, nx)
-    return np.stack([idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, 1:].ravel(), idx[1:, :-1].ravel()],
-                    axis=1)
+    """Quads (Q, 4) of the model's cloth grids (:func:`springsim.viz.cloth_blocks`); (0, 4) if none."""
+    from .viz import cloth_blocks
+
+    quads = [np.zeros((0, 4), dtype=np.int64)]
+    for start, nx, ny in cloth_blocks(model):
+        idx = start + np.arange(nx * ny, dtype=np.int64).reshape(ny, nx)
+        quads.append(np.stack([idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, 1:].ravel(),
+                               idx[1:, :-1].ravel()], axis=1))
+    return np.concatenate(quads)
 
 
 def _rows(fh, fmt: str, a: np.ndarray) -> None:

@@ -3,8 +3,8 @@
 matplotlib is an optional extra (``pip install 'springsim[plot]'``) imported only
 when a function here is called; all output is written with the non-interactive
 Agg backend. Springs are drawn as line segments (one ``Line3DCollection``), a cloth
-(``model.metadata['cloth_shape'] = (nx, ny)``, particles ``j*nx + i``) as a shaded
-surface, free particles as dots and fixed ones as black squares.
+(see :func:`cloth_blocks`) as a shaded surface, free particles as dots and fixed ones
+as black squares.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import numpy as np
 
 from .errors import SpringsimError
 
-__all__ = ["plot_dof", "render_frame", "render_gif", "require_matplotlib", "DOF_NAMES"]
+__all__ = ["plot_dof", "render_frame", "render_gif", "require_matplotlib", "cloth_blocks", "DOF_NAMES"]
 
 #: Names accepted for a coordinate, besides 0, 1, 2.
 DOF_NAMES = {"x": 0, "y": 1, "z": 2}
@@ -88,6 +88,22 @@ def plot_dof(traj, particle_id: int, dof, y_range=None, out_png=None, *, title: 
     return Path(out_png)
 
 
+def cloth_blocks(model) -> list[tuple[int, int, int]]:
+    """Cloth grids of ``model`` as ``(start, nx, ny)``: particle ``(i, j)`` is ``start + j*nx + i``.
+
+    Read from ``model.metadata['cloth_blocks']`` (YAML scenes) or ``['cloth_shape']``
+    (one grid starting at particle 0); grids that do not fit the model are ignored.
+    """
+    md = model.metadata if isinstance(model.metadata, dict) else {}
+    if md.get("cloth_blocks"):
+        blocks = [(int(b[0]), int(b[1]), int(b[2])) for b in md["cloth_blocks"]]
+    elif md.get("cloth_shape") is not None:
+        blocks = [(0, int(md["cloth_shape"][0]), int(md["cloth_shape"][1]))]
+    else:
+        blocks = []
+    return [b for b in blocks if b[0] >= 0 and b[0] + b[1] * b[2] <= model.particle_count]
+
+
 def _bounds(q: np.ndarray):
     """Cube bounds (lo, hi) (3,) around all finite positions in ``q`` (..., 3), equal extents."""
     pts = q.reshape(-1, 3)
@@ -105,13 +121,13 @@ def _draw(ax, model, q: np.ndarray, *, show_springs: bool, show_particles: bool,
     from mpl_toolkits.mplot3d.art3d import Line3DCollection
 
     artists = []
-    shape = model.metadata.get("cloth_shape") if isinstance(model.metadata, dict) else None
     n = q.shape[0]
-    if surface and shape is not None and int(shape[0]) * int(shape[1]) <= n:
-        nx, ny = int(shape[0]), int(shape[1])
-        g = q[: nx * ny].reshape(ny, nx, 3)
-        artists.append(ax.plot_surface(g[..., 0], g[..., 1], g[..., 2], color="tab:orange", shade=True,
-                                       linewidth=0.2, edgecolor="0.4", alpha=0.95, antialiased=True))
+    blocks = cloth_blocks(model)
+    if surface and blocks:
+        for start, nx, ny in blocks:
+            g = q[start:start + nx * ny].reshape(ny, nx, 3)
+            artists.append(ax.plot_surface(g[..., 0], g[..., 1], g[..., 2], color="tab:orange", shade=True,
+                                           linewidth=0.2, edgecolor="0.4", alpha=0.95, antialiased=True))
     elif show_springs and model.spring_count:
         segs = q[model.spring_indices]
         lc = Line3DCollection(segs, colors="tab:blue", linewidths=0.8)
