@@ -19,6 +19,7 @@ import importlib
 import math
 import sys
 import time
+import warnings
 from dataclasses import dataclass
 from typing import Callable
 
@@ -173,7 +174,7 @@ def _summary_lines(scene, cfg, integrator, traj, steps: int) -> list[tuple[str, 
 
 def _run(args: argparse.Namespace) -> int:
     from .driver import SimulationInterrupted, simulate
-    from .integrators import make_integrator
+    from .integrators import NewtonConvergenceWarning, make_integrator
     from .scene import DEFAULT_STEPS, load_scene
 
     scene = load_scene(args.scene)
@@ -193,8 +194,11 @@ def _run(args: argparse.Namespace) -> int:
         progress = ProgressBar(sys.stderr)
     record = args.out is not None
     try:
-        traj = simulate(scene.model, integrator, cfg.dt, steps, frame_every=args.frame_every, record=record,
-                        progress=progress)
+        with warnings.catch_warnings():
+            # counted in the summary instead of one multi-line warning per step
+            warnings.simplefilter("ignore", NewtonConvergenceWarning)
+            traj = simulate(scene.model, integrator, cfg.dt, steps, frame_every=args.frame_every, record=record,
+                            progress=progress)
     except SimulationError as e:
         if progress is not None:
             progress.close()
@@ -209,6 +213,10 @@ def _run(args: argparse.Namespace) -> int:
         progress.close()
     if args.out is not None:
         traj.save(args.out)
+    failures = traj.summary()["newton_failures"]
+    if failures:
+        print(f"springsim: warning: Newton did not converge in {failures} of {len(traj.stats)} step(s) "
+              f"(newton_tol {integrator.newton_tol:g}, newton_maxiter {integrator.newton_maxiter})", file=sys.stderr)
     if not args.quiet:
         rows = _summary_lines(scene, cfg, integrator, traj, steps)
         if args.out is not None:

@@ -182,3 +182,11 @@ def test_python_dash_m_entry_point(tmp_path):
     err = subprocess.run([sys.executable, "-m", "springsim", "run", str(bad)], capture_output=True, text=True,
                          timeout=120)
     assert err.returncode == 2 and err.stderr.count("\n") == 1 and "Traceback" not in err.stderr
+
+
+def test_newton_nonconvergence_is_one_warning_line(capsys, scene_file):
+    """Newton non-convergence gives one summary warning line on stderr instead of a warning per step."""
+    code, out, err = _run(capsys, "run", scene_file, "--newton-maxiter", 1, "--newton-tol", "1e-14")
+    assert code == 0 and "Newton non-converged:  5 step(s)" in out
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("springsim: warning: Newton did not converge in 5 of 5")
