@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import math
+import os
 import sys
 import time
 import warnings
@@ -178,6 +179,10 @@ def _run(args: argparse.Namespace) -> int:
     from .scene import DEFAULT_STEPS, load_scene
 
     scene = load_scene(args.scene)
+    if args.out is not None:
+        out_dir = os.path.dirname(os.path.abspath(args.out))
+        if not os.path.isdir(out_dir):
+            raise UsageError(f"--out {args.out}: directory {out_dir} does not exist")
     cfg = scene.config.with_overrides(dt=args.dt, integrator=args.integrator, linear_solver=args.solver,
                                       jacobian=args.jacobian, linear_rtol=args.rtol, newton_tol=args.newton_tol,
                                       newton_maxiter=args.newton_maxiter)

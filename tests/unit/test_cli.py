@@ -89,6 +89,7 @@ def test_duration_and_default_steps(capsys, tmp_path):
     (["run", "{scene}", "--jacobian", "bad"], "solver.jacobian: unknown jacobian mode 'bad'"),
     (["run", "{bad}"], "springs[0].stiffness: must be >= 0, got -1"),
     (["run", "{syntax}"], "YAML syntax error at line"),
+    (["run", "{scene}", "--out", "{tmp}/no/such/dir/x.npz"], "does not exist"),
 ])
 def test_user_errors_exit_2_one_line(capsys, scene_file, tmp_path, argv, fragment):
     """User errors print one line 'springsim: error: ...' on stderr, no traceback, and exit 2."""
@@ -96,7 +97,7 @@ def test_user_errors_exit_2_one_line(capsys, scene_file, tmp_path, argv, fragmen
     bad.write_text(SCENE.replace("stiffness: 100", "stiffness: -1"))
     syntax = tmp_path / "syntax.yaml"
     syntax.write_text("solver: {type: x\n  particles: [")
-    argv = [a.format(scene=scene_file, bad=bad, syntax=syntax) for a in argv]
+    argv = [a.format(scene=scene_file, bad=bad, syntax=syntax, tmp=tmp_path) for a in argv]
     code, out, err = _run(capsys, *argv)
     assert code == 2 and out == ""
     lines = err.strip().splitlines()
