@@ -22,6 +22,7 @@ import sys
 import time
 import warnings
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Callable
 
 from .errors import SceneError, SimulationError, SpringsimError
@@ -178,7 +179,7 @@ def _run(args: argparse.Namespace) -> int:
     from .integrators import NewtonConvergenceWarning, make_integrator
     from .scene import DEFAULT_STEPS, load_scene
 
-    scene = load_scene(args.scene)
+    scene = load_scene(Path(args.scene))  # always a path on the command line, never YAML text
     if args.out is not None:
         out_dir = os.path.dirname(os.path.abspath(args.out))
         if not os.path.isdir(out_dir):
