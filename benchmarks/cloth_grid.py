@@ -50,7 +50,8 @@ def run(n, steps, integrator, solver, rtol, jacobian, warmup, solver_options=Non
         wall = time.perf_counter() - t
         s0, s1 = s1, s0
         rows.append(dict(step_s=wall, assembly_s=st.assembly_s, solve_s=st.solve_s, iterations=st.linear_iterations,
-                         relres=st.linear_residual, fallbacks=list(st.fallbacks)))
+                         relres=st.linear_residual, fallbacks=list(st.fallbacks), newton=st.newton_iterations,
+                         newton_ok=st.newton_converged))
         if not np.all(np.isfinite(s0.particle_q)):
             raise SystemExit(f"blew up at step {len(rows)}")
     body = rows[warmup:] or rows
@@ -60,7 +61,8 @@ def run(n, steps, integrator, solver, rtol, jacobian, warmup, solver_options=Non
         free_dofs=int(3 * model.free_particles.size), steps=steps, warmup=warmup, integrator=integrator,
         solver=solver, jacobian=integ.jacobian, rtol=rtol,
         step_s=med("step_s"), assembly_s=med("assembly_s"), solve_s=med("solve_s"), iterations=med("iterations"),
-        max_iterations=int(max(r["iterations"] for r in body)),
+        max_iterations=int(max(r["iterations"] for r in body)), newton_iterations=med("newton"),
+        newton_failures=sum(not r["newton_ok"] for r in rows),
         max_relres=float(max(r["relres"] for r in rows)),
         warmup_step_s=[r["step_s"] for r in rows[:warmup]], build_s=build_s, symbolic_s=symbolic_s,
         fallbacks=sum(len(r["fallbacks"]) for r in rows),
@@ -68,6 +70,29 @@ def run(n, steps, integrator, solver, rtol, jacobian, warmup, solver_options=Non
         solver_info={k: v for k, v in getattr(getattr(integ.solver, "amg", None), "describe", dict)().items()},
     )
     return summary, s0
+
+
+def dense_path(n, steps):
+    """Seconds per step of the dense seed path (linearized implicit Euler, eqs. 3-4): dense
+    assembly over all 3N DOFs with identity rows for pinned ones, then ``np.linalg.solve``;
+    returns (median step time, final positions)."""
+    from springsim.assembly.dense import dense_system
+    from springsim.forces import eval_forces, make_force_terms
+
+    model = benchmark_cloth(n)
+    terms = make_force_terms(model, skip_fixed=False)
+    q, qd = model.particle_q.copy(), model.particle_qd.copy()
+    h, times = BENCHMARK_DT, []
+    for _ in range(steps):
+        t = time.perf_counter()
+        rhs = h * eval_forces(terms, q + h * qd, qd)
+        A, r = dense_system(model, q + h * qd, qd, h * h, h, rhs, "exact", terms=terms)
+        dv = np.linalg.solve(A, r).reshape(-1, 3)
+        dv[model.particle_fixed] = 0.0
+        qd = qd + dv
+        q = q + h * qd
+        times.append(time.perf_counter() - t)
+    return float(np.median(times)), q
 
 
 def main(argv=None):
@@ -82,6 +107,10 @@ def main(argv=None):
     p.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
                    help="extra solver option (value parsed as JSON when possible), e.g. near_nullspace=translations")
     p.add_argument("--compare-direct", type=int, default=0, metavar="K")
+    p.add_argument("--compare-modes", action="store_true",
+                   help="also run the three Jacobian modes with this solver and report position differences vs exact")
+    p.add_argument("--dense-path", type=int, default=0, metavar="K",
+                   help="also time K steps of the dense seed path and report the speed-up")
     p.add_argument("--json", default=None)
     a = p.parse_args(argv)
     warmup = min(9, a.steps - 1) if a.warmup is None else a.warmup
@@ -96,14 +125,32 @@ def main(argv=None):
     if a.compare_direct:
         s_it, q_it = run(a.n, a.compare_direct, a.integrator, a.solver, a.rtol, a.jacobian, 0, opts)
         s_d, q_d = run(a.n, a.compare_direct, a.integrator, "direct", None, summary["jacobian"], 0)
-        u_it = q_it.particle_q - benchmark_cloth(a.n).particle_q
-        diff = np.linalg.norm(q_it.particle_q - q_d.particle_q) / max(np.linalg.norm(q_d.particle_q
-                                                                                   - benchmark_cloth(a.n).particle_q),
-                                                                    1e-300)
-        summary.update(compare_steps=a.compare_direct, rel_diff_vs_direct=float(diff),
-                       direct_step_s=s_d["step_s"], displacement_norm=float(np.linalg.norm(u_it)))
+        disp = q_d.particle_q - benchmark_cloth(a.n).particle_q
+        diff = np.linalg.norm(q_it.particle_q - q_d.particle_q) / max(np.linalg.norm(disp), 1e-300)
+        summary.update(compare_steps=a.compare_direct, rel_diff_vs_direct=float(diff), direct_step_s=s_d["step_s"])
+    if a.dense_path:
+        dense_s, q_dense = dense_path(a.n, a.dense_path)
+        summary.update(dense_step_s=dense_s, dense_speedup=dense_s / summary["step_s"])
+        print(f"dense seed path: {dense_s:.4g} s/step, sparse {summary['step_s']:.4g} s/step: "
+              f"speed-up {dense_s / summary['step_s']:.1f}x")
+    if a.compare_modes:
+        q0 = benchmark_cloth(a.n).particle_q
+        finals, modes = {}, {}
+        for mode in ("exact", "symmetric", "spd"):
+            sm, st = run(a.n, a.steps, a.integrator, a.solver, a.rtol, mode, warmup, opts)
+            finals[mode] = st.particle_q
+            modes[mode] = {k: sm[k] for k in ("step_s", "solve_s", "iterations", "newton_iterations", "newton_failures",
+                                              "fallbacks")}
+        for mode in modes:
+            modes[mode]["rel_diff_vs_exact"] = float(np.linalg.norm(finals[mode] - finals["exact"])
+                                                     / np.linalg.norm(finals["exact"] - q0))
+        summary["modes"] = modes
+        print("mode | step_s | newton_iterations | newton_failures | rel_diff_vs_exact")
+        for mode, m in modes.items():
+            print(f"{mode} | {m['step_s']:.4g} | {m['newton_iterations']:.3g} | {m['newton_failures']} | "
+                  f"{m['rel_diff_vs_exact']:.3e}")
     keys = ["n", "particles", "springs", "dofs", "steps", "solver", "jacobian", "rtol", "step_s", "assembly_s",
-            "solve_s", "iterations", "max_iterations", "max_relres", "fallbacks", "peak_rss_mb"]
+            "solve_s", "iterations", "max_iterations", "newton_iterations", "max_relres", "fallbacks", "peak_rss_mb"]
     if a.compare_direct:
         keys += ["rel_diff_vs_direct", "direct_step_s"]
     print(" | ".join(f"{k}" for k in keys))
