@@ -166,7 +166,9 @@ class AMGHierarchy:
             pre = post = (self.smoother, {})
         opts = dict(B=B, symmetry=self.symmetry, max_coarse=self.max_coarse, coarse_solver="pinv",
                     presmoother=pre, postsmoother=post, smooth=None, improve_candidates=None)
-        opts.update(self.sa_options)
+        # pyamg wants ("method", {kwargs}) tuples; YAML/JSON give lists
+        opts.update({k: tuple(v) if isinstance(v, list) and len(v) == 2 and isinstance(v[0], str) else v
+                     for k, v in self.sa_options.items()})
         self.ml = pyamg.smoothed_aggregation_solver(M, **opts)
         ml = self.ml
 
