@@ -22,8 +22,11 @@ output of the previous step) is one implicit Euler step. The integrator remember
 input and output, so a step repeated from the same input (a rejected adaptive step) reuses
 the same history, and a step from the previous output continues the multistep sequence.
 
-Newton starts from the predictor (below) and stops as implicit Euler does
-(``|dv|_2 < newton_tol`` or ``newton_maxiter``).
+Newton starts from ``qd^n`` and stops as implicit Euler does (``|dv|_2 < newton_tol`` or
+``newton_maxiter``). Starting from the predictor below, or from a linear extrapolation of
+the velocity, is worse on stiff cloth: it extrapolates the stiff modes explicitly, and on
+the 32x32 benchmark cloth at h = 1/60 s Newton then missed its 5-iteration limit on 23-25
+of 30 steps instead of 8 (implicit Euler: 8).
 
 Local error estimate (used by :func:`springsim.adaptive.simulate_adaptive`): the predictor
 is the quadratic ``p`` with ``p(t_{n-1}) = y_{n-1}``, ``p(t_n) = y_n``, ``p'(t_n) = y'_n``
@@ -111,7 +114,7 @@ class IntegratorBDF2(ImplicitIntegrator):
             a_n = self.acceleration(q, v).copy()
             q_pred, v_pred = q + h * v, v + h * a_n
             c = h
-            q1, v1 = self.solve_stage(q, v, c, v_pred, stats)
+            q1, v1 = self.solve_stage(q, v, c, v, stats)
             a1 = (v1 - v) / c
             k = 0.5
             stats.extra["bdf2_start"] = True
@@ -125,7 +128,7 @@ class IntegratorBDF2(ImplicitIntegrator):
             v_hat = ca * v - cb * v_prev
             q_pred = _hermite_predict(q, v, q_prev, h_prev, h)
             v_pred = _hermite_predict(v, a_n, v_prev, h_prev, h)
-            q1, v1 = self.solve_stage(q_hat, v_hat, c, v_pred, stats)
+            q1, v1 = self.solve_stage(q_hat, v_hat, c, v, stats)
             a1 = (v1 - v_hat) / c
             k = c / (c + h)
         q1[self.fixed] = q[self.fixed]  # a1 q - a2 q_prev rounds: keep fixed particles bit-exact
