@@ -34,6 +34,7 @@ Usage::
 from __future__ import annotations
 
 import argparse
+import csv
 import sys
 import warnings
 from pathlib import Path
@@ -45,7 +46,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import (RESULTS_DIR, SCENE_NAMES, benchmark_case, fit_order, markdown_table, position_errors,  # noqa: E402
                      pyplot, reference_final, scene_case, total_energy, write_csv)
 
-__all__ = ["COLUMNS", "ORDER_COLUMNS", "run_case", "orders", "main"]
+__all__ = ["COLUMNS", "ORDER_COLUMNS", "run_case", "classify", "orders", "pareto_plot", "read_csv", "main"]
 
 #: Columns of the CSV / markdown table.
 COLUMNS = ["case", "sweep", "method", "integrator", "solver", "jacobian", "rtol", "newton_tol", "dt", "steps",
@@ -105,14 +106,29 @@ def _run(case, ref_q, e_ref_drift, integrator: str, dt: float, *, sweep: str, me
     s = tr.summary()
     rms, mx = position_errors(tr.q[-1], ref_q, case.size)
     e1 = total_energy(model, terms, tr.q[-1], tr.qd[-1])
-    status = "ok" if rms < 1.0 else "unstable (diverged)"
-    if status == "ok" and s["newton_failures"]:
-        status = f"ok ({s['newton_failures']} Newton limit)"
-    row.update(status=status, wall_per_sim_s=s["wall_s"] / case.horizon, err_rms=rms, err_max=mx,
+    row.update(wall_per_sim_s=s["wall_s"] / case.horizon, err_rms=rms, err_max=mx,
                energy_drift=(e1 - e0) / e_scale if np.isfinite(e1) else float("inf"),
                newton_per_step=s["newton_iterations"], linear_per_step=s["linear_iterations"],
                newton_failures=s["newton_failures"], fallbacks=s["fallbacks"])
+    row["status"] = classify(row)
     return row
+
+
+def classify(row: dict) -> str:
+    """Status of a finished run: ``ok``, ``ok (k Newton limit)`` or ``unstable (...)``.
+
+    Unstable: RMS error above the scene size, or an energy gain above ``E_scale`` beyond
+    the reference's (no scene here gains energy; a stiff cloth whose Newton iterations
+    stall at a large step can blow up in energy while its positions stay bounded).
+    """
+    rms, drift = float(row["err_rms"]), float(row["energy_drift"])
+    ref = float(row.get("energy_drift_ref") or 0.0)
+    if not rms < 1.0:
+        return "unstable (diverged)"
+    if not drift - ref < 1.0:
+        return f"unstable (energy +{drift:.3g} E_scale)"
+    k = int(float(row.get("newton_failures") or 0))
+    return f"ok ({k} Newton limit)" if k else "ok"
 
 
 def run_case(case, *, dts, newton_tols, solver_rtols, solver_dt: float = 1 / 60, ref_method: str = "auto",
@@ -166,6 +182,21 @@ def run_case(case, *, dts, newton_tols, solver_rtols, solver_dt: float = 1 / 60,
     return rows
 
 
+def read_csv(path) -> list[dict]:
+    """Rows of a ``speed_vs_error.csv`` with numbers parsed and the status re-derived by :func:`classify`."""
+    text = {"case", "sweep", "method", "integrator", "solver", "jacobian", "status"}
+    rows = []
+    with open(path) as fh:
+        for r in csv.DictReader(fh):
+            for k, v in r.items():
+                if k not in text and v != "":
+                    r[k] = float(v)
+            if r["status"].startswith(("ok", "unstable (diverged)", "unstable (energy")) and r["err_rms"] != "":
+                r["status"] = classify(r)
+            rows.append(r)
+    return rows
+
+
 def orders(rows: list[dict]) -> list[dict]:
     """Observed convergence order per (case, integrator) from the dt sweep."""
     from springsim.integrators import INTEGRATORS
@@ -177,7 +208,7 @@ def orders(rows: list[dict]) -> list[dict]:
             if not rr:
                 continue
             dts = [r["dt"] for r in rr]
-            errs = [r.get("err_rms", np.nan) for r in rr]
+            errs = [r.get("err_rms", np.nan) if r["status"].startswith("ok") else np.nan for r in rr]
             ok = [d for d, e in zip(dts, errs) if np.isfinite(e) and 1e-12 < e < 0.5]
             used = sorted(ok)[:3]
             out.append(dict(case=case, integrator=name, order=fit_order(dts, errs),
@@ -231,6 +262,8 @@ def main(argv=None) -> int:
     p.add_argument("--ref-method", default="auto", help="solve_ivp method of the reference (auto|Radau|BDF|DOP853)")
     p.add_argument("--out", type=Path, default=RESULTS_DIR, help="output directory")
     p.add_argument("--plot-dir", type=Path, default=None, help="also write the Pareto PNGs here (e.g. docs/)")
+    p.add_argument("--from-csv", type=Path, default=None,
+                   help="skip the runs: rebuild tables and plots from an earlier speed_vs_error.csv")
     a = p.parse_args(argv)
     if a.quick:
         cloths = [4] if a.cloth is None else a.cloth
@@ -244,8 +277,8 @@ def main(argv=None) -> int:
         if not a.full:
             dts, rtols = [d for d in dts if d > 1 / 3000], [1e-2, 1e-4, 1e-6, 1e-10]
     cases = [scene_case(s, horizon) for s in scenes] + [benchmark_case(n, horizon) for n in cloths]
-    rows = []
-    for case in cases:
+    rows = read_csv(a.from_csv) if a.from_csv else []
+    for case in (cases if a.from_csv is None else []):
         ladder = dts
         if case.name.startswith("cloth") and not (a.quick or a.full):
             # bound the default run: the finest steps only on the small cloths
@@ -265,9 +298,9 @@ def main(argv=None) -> int:
           + markdown_table(ords, ORDER_COLUMNS) + "\n")
     (a.out / "speed_vs_error.md").write_text(md)
     print(markdown_table(ords, ORDER_COLUMNS))
-    for case in cases:
+    for name in dict.fromkeys(r["case"] for r in rows):
         for d in [a.out] + ([a.plot_dir] if a.plot_dir else []):
-            pareto_plot(rows, case.name, d / f"pareto_{case.name}.png")
+            pareto_plot(rows, name, d / f"pareto_{name}.png")
     print(f"wrote {a.out / 'speed_vs_error.csv'}, {a.out / 'speed_vs_error.md'}")
     return 0
 
