@@ -149,9 +149,11 @@ def main(argv=None) -> int:
     p.add_argument("--plot-dir", type=Path, default=None, help="also write the PNG here (e.g. docs/)")
     a = p.parse_args(argv)
     sizes = a.sizes or ([8] if a.quick else [64, 128] + ([256] if a.large else []))
-    rows = run(sizes, rtols=[1e-2, 1e-8] if a.quick else RTOLS)
     a.out.mkdir(parents=True, exist_ok=True)
-    write_csv(a.out / "linear_solve_error.csv", rows, COLUMNS)
+    rows = []
+    for n in sizes:  # write after every size, so a long run leaves its finished part
+        rows += run([n], rtols=[1e-2, 1e-8] if a.quick else RTOLS)
+        write_csv(a.out / "linear_solve_error.csv", rows, COLUMNS)
     md = markdown_table(rows, COLUMNS)
     (a.out / "linear_solve_error.md").write_text("## Linear-solve error against speed\n\n" + md + "\n")
     print(md)
