@@ -128,6 +128,7 @@ def main(argv=None) -> int:
     p.add_argument("--out", type=Path, default=RESULTS_DIR)
     p.add_argument("--plot-dir", type=Path, default=None, help="also write the PNG here (e.g. docs/)")
     a = p.parse_args(argv)
+    a.out.mkdir(parents=True, exist_ok=True)
     sizes = a.sizes or ([8, 16] if a.quick else [16, 32, 64, 128, 256, 512])
     steps, warmup = (1, 1) if a.quick else (a.steps, a.warmup)
     solver = a.solver or default_solver()
@@ -135,6 +136,7 @@ def main(argv=None) -> int:
     for n in sizes:
         r = time_steps(n, solver=solver, integrator=a.integrator, steps=steps, warmup=warmup, rtol=a.rtol)
         rows.append(r)
+        write_csv(a.out / "scaling.csv", rows, COLUMNS)  # after every size: a long run keeps its finished part
         print(f"  n={n:5d} dofs={r['dofs']:8d} step={r['step_s']:.4g}s solve={r['solve_s']:.4g}s "
               f"newton/step={r['newton_per_step']:.2f} linear/step={r['linear_per_step']:.1f}", flush=True)
     pexp = fit_exponent(rows)
