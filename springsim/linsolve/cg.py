@@ -14,7 +14,7 @@ import time
 
 import numpy as np
 
-from ._krylov import IterativeSolver, pcg
+from ._krylov import IterativeSolver, KrylovInfo, pcg
 
 __all__ = ["LinearSolverCG", "block_diagonal"]
 
@@ -71,8 +71,6 @@ class LinearSolverCG(IterativeSolver):
                 return np.einsum("kij,kj->ki", Dinv, r.reshape(-1, 3)).reshape(-1)
         t1 = time.perf_counter()
         if not ok:  # a singular diagonal block: not an SPD matrix
-            from ._krylov import KrylovInfo
-
             return self._finish(A, b, np.zeros_like(b), KrylovInfo(0, 1.0, "singular diagonal"), t1 - t0, 0.0,
                                 {"preconditioner": self.preconditioner})
         x, info = pcg(A.bsr.__matmul__, b, precond, x0, rtol=self.rtol, atol=self.atol,
