@@ -126,6 +126,11 @@ def _run_add_arguments(p: argparse.ArgumentParser) -> None:
                    help="relative tolerance of iterative linear solvers (overrides solver.linear_rtol)")
     p.add_argument("--newton-tol", type=_positive_float, metavar="TOL", help="Newton tolerance on |dv| [m/s]")
     p.add_argument("--newton-maxiter", type=_positive_int, metavar="N", help="Newton iteration limit")
+    p.add_argument("--time-rtol", type=_positive_float, metavar="R",
+                   help="adaptive time stepping (bdf2, tr_bdf2): relative local error tolerance; --dt is then "
+                        "the first step and the frame spacing (overrides solver.time_rtol)")
+    p.add_argument("--time-atol", type=_positive_float, metavar="A",
+                   help="adaptive time stepping: absolute local error tolerance [m, m/s] (overrides solver.time_atol)")
     p.add_argument("--out", metavar="FILE.npz", help="write frames t (F,), q (F,N,3), qd (F,N,3) to an .npz")
     p.add_argument("--frame-every", type=_positive_int, default=1, metavar="K",
                    help="record every K-th step in --out (first and last always)")
@@ -186,7 +191,8 @@ def _run(args: argparse.Namespace) -> int:
             raise UsageError(f"--out {args.out}: directory {out_dir} does not exist")
     cfg = scene.config.with_overrides(dt=args.dt, integrator=args.integrator, linear_solver=args.solver,
                                       jacobian=args.jacobian, linear_rtol=args.rtol, newton_tol=args.newton_tol,
-                                      newton_maxiter=args.newton_maxiter)
+                                      newton_maxiter=args.newton_maxiter, time_rtol=args.time_rtol,
+                                      time_atol=args.time_atol)
     if args.steps is not None:
         steps = args.steps
     elif args.duration is not None:
@@ -203,8 +209,17 @@ def _run(args: argparse.Namespace) -> int:
         with warnings.catch_warnings():
             # counted in the summary instead of one multi-line warning per step
             warnings.simplefilter("ignore", NewtonConvergenceWarning)
-            traj = simulate(scene.model, integrator, cfg.dt, steps, frame_every=args.frame_every, record=record,
-                            progress=progress)
+            if cfg.time_rtol is not None or cfg.time_atol is not None:  # adaptive, frames every dt
+                from .adaptive import simulate_adaptive
+                rtol = cfg.time_rtol if cfg.time_rtol is not None else cfg.time_atol
+                atol = cfg.time_atol if cfg.time_atol is not None else cfg.time_rtol
+                traj = simulate_adaptive(scene.model, integrator, steps * cfg.dt, time_rtol=rtol, time_atol=atol,
+                                         frame_dt=cfg.dt * args.frame_every if record else None, h0=cfg.dt,
+                                         progress=None if progress is None else
+                                         (lambda t, t_end: progress(int(round(t / cfg.dt)), steps)))
+            else:
+                traj = simulate(scene.model, integrator, cfg.dt, steps, frame_every=args.frame_every,
+                                record=record, progress=progress)
     except SimulationError as e:
         if progress is not None:
             progress.close()
@@ -225,6 +240,13 @@ def _run(args: argparse.Namespace) -> int:
               f"(newton_tol {integrator.newton_tol:g}, newton_maxiter {integrator.newton_maxiter})", file=sys.stderr)
     if not args.quiet:
         rows = _summary_lines(scene, cfg, integrator, traj, steps)
+        if getattr(traj, "adaptive_stats", None):
+            a = traj.adaptive_stats
+            rows = [(k, v) if k != "steps" else (k, f"{a['accepted']} (adaptive, mean h {a['h_mean']:.3g} s)")
+                    for k, v in rows if k != "simulated time"] + [("simulated time", f"{traj.t[-1]:g} s")]
+            rows.append(("adaptive steps", f"{a['accepted']} accepted, {a['rejected']} rejected, h in "
+                                           f"[{a['h_min']:.3g}, {a['h_max']:.3g}] s (time_rtol {rtol:g}, "
+                                           f"time_atol {atol:g})"))
         if args.out is not None:
             rows.append(("output", f"{args.out} ({traj.frame_count} frames)"))
         w = max(len(k) for k, _ in rows)
