@@ -259,6 +259,8 @@ def _run(args: argparse.Namespace) -> int:
 COMMANDS: dict[str, object] = {
     "run": Command(_run_add_arguments, _run, "run a scene and print a summary"),
 }
+from .cli_extra import export_command, plot_command, render_command  # noqa: E402
+COMMANDS.update(plot=plot_command, render=render_command, export=export_command)
 
 
 def _resolve(cmd):

@@ -102,3 +102,15 @@ def test_plot_and_render_commands(tmp_path):
     assert (tmp_path / "t.png").read_bytes()[:8] == PNG
     with pytest.raises(SpringsimError, match="--scene"):
         _run(render_command, [str(tmp_path / "t.npz"), "--out", str(tmp_path / "u.png")])
+
+
+def test_cli_registers_plot_render_export(tmp_path, capsys):
+    """springsim plot/render/export go through the CLI registry; a scene without plot: is exit status 2."""
+    from springsim.cli import main
+
+    spring = str(SCENES / "spring.yaml")
+    assert main(["plot", spring, "--steps", "10", "--out", str(tmp_path / "p.png")]) == 0
+    assert (tmp_path / "p.png").read_bytes()[:8] == PNG
+    assert main(["render", spring, "--steps", "4", "--every", "2", "--out", str(tmp_path / "x.png")]) == 2
+    assert main(["plot", str(SCENES / "stiff_chain.yaml"), "--out", str(tmp_path / "c.png")]) == 2
+    assert "no plot: block" in capsys.readouterr().err
