@@ -120,7 +120,7 @@ def plot(rows, out_png, *, dpi: int = 80) -> bool:
     if plt is None:
         return False
     sizes = sorted(dict.fromkeys(r["n"] for r in rows))
-    fig, axes = plt.subplots(1, len(sizes), figsize=(4.2 * len(sizes), 3.8), squeeze=False)
+    fig, axes = plt.subplots(1, len(sizes), figsize=(max(6.4, 4.2 * len(sizes)), 4.2), squeeze=False)
     for ax, n in zip(axes[0], sizes):
         rr = [r for r in rows if r["n"] == n and np.isfinite(r.get("rel_error", np.nan))]
         for key in dict.fromkeys((r["solver"], r["jacobian"]) for r in rr):
