@@ -162,12 +162,15 @@ def spring_energy():
     write_csv("spring_energy", header, rows)
 
 
-def run_size(n, ref_steps, sweep_steps, tols, sweep=True):
+def run_size(n, ref_steps, sweep_steps, tols, sweep=True, only_adaptive=None):
     model = cloth(n)
     print(f"\n# n = {n}: {model.particle_count} particles, {model.spring_count} springs", flush=True)
     q_ref, v_ref, cpu_ref, _ = fixed_run(model, "tr_bdf2", ref_steps, newton_tol=1e-8, newton_maxiter=20)
-    q_half, _, _, _ = fixed_run(model, "tr_bdf2", ref_steps // 2, newton_tol=1e-8, newton_maxiter=20)
-    ref_err = rms(q_half, q_ref)
+    if only_adaptive:
+        ref_err = float("nan")
+    else:
+        q_half, _, _, _ = fixed_run(model, "tr_bdf2", ref_steps // 2, newton_tol=1e-8, newton_maxiter=20)
+        ref_err = rms(q_half, q_ref)
     print(f"reference: TR-BDF2, {ref_steps} steps, cpu {cpu_ref:.1f} s; |ref(h) - ref(2h)|_rms = {ref_err:.2e} m",
           flush=True)
     q0, v0 = model.particle_q, model.particle_qd
@@ -175,6 +178,17 @@ def run_size(n, ref_steps, sweep_steps, tols, sweep=True):
     E_ref = energy(model, q_ref, v_ref)
     z_ref = q_ref[:, 2].min()
 
+    if only_adaptive:
+        sweep = []
+        for tol in tols:
+            q, _, cpu, tr = adaptive_run(model, only_adaptive, tol)
+            sweep.append([n, f"{only_adaptive}+adaptive", tol, T_END / max(tr.adaptive_stats["accepted"], 1),
+                          rms(q, q_ref), cpu / T_END])
+            print("  ", sweep[-1], tr.adaptive_stats, flush=True)
+        header = ["n", "method", "h_or_tol", "mean_h_s", "rms_err_m", "cpu_per_sim_s"]
+        table(f"n = {n}: adaptive {only_adaptive}", header, sweep)
+        write_csv(f"adaptive_{only_adaptive}_n{n}", header, sweep)
+        return
     # 1. h = 1/60 error and energy
     rows = []
     for name in METHODS + ("trapezoidal",):
@@ -244,16 +258,18 @@ def main(argv=None):
     p.add_argument("--ref-steps", type=int, default=1170, help="TR-BDF2 steps of the reference over 1.17 s")
     p.add_argument("--validate-n", type=int, default=8, help="cloth size for the Radau validation (0: skip)")
     p.add_argument("--sweep-steps", type=int, nargs="+", default=[70, 140, 280, 560])
+    p.add_argument("--only-adaptive", metavar="NAME", help="only the adaptive sweep of NAME (skips the rest)")
     p.add_argument("--no-sweep", action="store_true", help="only the h = 1/60 table (large n)")
     p.add_argument("--tols", type=float, nargs="+", default=[1e-2, 3e-3, 1e-3, 3e-4, 1e-4])
     a = p.parse_args(argv)
     warnings.simplefilter("ignore")
     print(f"accuracy at animation steps: T = {T_END} s, h_anim = 1/60 s, CPU = time.process_time()")
-    spring_energy()
-    if a.validate_n:
+    if not a.only_adaptive:
+        spring_energy()
+    if a.validate_n and not a.only_adaptive:
         validate_reference(a.validate_n, a.ref_steps)
     for n in a.sizes:
-        run_size(n, a.ref_steps, a.sweep_steps, a.tols, sweep=not a.no_sweep)
+        run_size(n, a.ref_steps, a.sweep_steps, a.tols, sweep=not a.no_sweep, only_adaptive=a.only_adaptive)
 
 
 if __name__ == "__main__":
