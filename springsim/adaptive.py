@@ -13,7 +13,8 @@ next step is::
 
     h_new = h min(grow, max(shrink, safety err^(-1/(p+1))))        p = integrator order (2)
 
-with ``safety = 0.9``, ``grow = 4`` (1 right after a rejection), ``shrink = 0.2``,
+with ``safety = 0.9``, ``grow = 4`` (2 for BDF2, whose variable-step form is zero-stable
+only for step ratios below 1 + sqrt(2); 1 right after a rejection), ``shrink = 0.2``,
 clipped to ``[h_min, h_max]``. A rejected step is retried from the same state (the
 multistep history is reused, see :class:`~springsim.integrators.bdf2.StepHistory`);
 a Newton failure (``newton_converged`` False or a non-finite state) counts as a rejection
@@ -155,6 +156,7 @@ def simulate_adaptive(model, integrator, t_end: float, *, frame_dt: float | None
                                         f"(bdf2, tr_bdf2), got {getattr(integrator, 'name', integrator)!r}")
     integrator.reset()
     order = getattr(integrator, "order", 2)
+    grow = min(grow, getattr(integrator, "max_step_ratio", grow))
     expo = -1.0 / (order + 1)
     free = model.free_particles
 

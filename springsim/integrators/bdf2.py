@@ -94,6 +94,8 @@ class IntegratorBDF2(ImplicitIntegrator):
 
     name = "bdf2"
     order = 2
+    #: Largest step ratio ``w`` the adaptive driver uses (variable-step BDF2 is zero-stable for w < 1 + sqrt(2)).
+    max_step_ratio = 2.0
 
     def __init__(self, model, **options):
         super().__init__(model, **options)
