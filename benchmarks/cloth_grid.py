@@ -156,7 +156,8 @@ def main(argv=None):
     print(" | ".join(f"{k}" for k in keys))
     print(" | ".join(f"{summary[k]:.4g}" if isinstance(summary[k], float) else f"{summary[k]}" for k in keys))
     print(f"warm-up steps (s): {', '.join(f'{t:.3f}' for t in summary['warmup_step_s'])}; "
-          f"model build {summary['build_s']:.3f} s, symbolic {summary['symbolic_s']:.3f} s; AMG {summary['solver_info']}")
+          f"model build {summary['build_s']:.3f} s, symbolic {summary['symbolic_s']:.3f} s; "
+          f"AMG {summary['solver_info']}")
     if a.json:
         Path(a.json).parent.mkdir(parents=True, exist_ok=True)
         Path(a.json).write_text(json.dumps(summary, indent=1))
