@@ -264,6 +264,14 @@ def pyplot():
     return plt
 
 
+def save_figure(fig, out_png, dpi: int) -> None:
+    """Lay out ``fig``, write it to ``out_png`` (creating the folder) and close it."""
+    fig.tight_layout()
+    Path(out_png).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out_png, dpi=dpi)
+    pyplot().close(fig)
+
+
 def machine_info() -> dict:
     """CPU model, core count, RAM and library versions of this machine."""
     import numpy

@@ -27,7 +27,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _common import RESULTS_DIR, markdown_table, pyplot, write_csv  # noqa: E402
+from _common import RESULTS_DIR, markdown_table, pyplot, save_figure, write_csv  # noqa: E402
 
 __all__ = ["COLUMNS", "step_systems", "run", "main"]
 
@@ -133,10 +133,7 @@ def plot(rows, out_png, *, dpi: int = 80) -> bool:
         ax.set_ylabel("solve time incl. setup [s]")
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize=6)
-    fig.tight_layout()
-    Path(out_png).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out_png, dpi=dpi)
-    plt.close(fig)
+    save_figure(fig, out_png, dpi)
     return True
 
 

@@ -28,7 +28,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _common import RESULTS_DIR, markdown_table, pyplot, write_csv  # noqa: E402
+from _common import RESULTS_DIR, markdown_table, pyplot, save_figure, write_csv  # noqa: E402
 
 __all__ = ["COLUMNS", "default_solver", "time_steps", "fit_exponent", "main"]
 
@@ -109,10 +109,7 @@ def plot(rows, p: float, out_png, *, dpi: int = 80) -> bool:
     ax.set_title(f"{rows[0]['integrator']}, {rows[0]['solver']}, h = 1/60 s")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=7)
-    fig.tight_layout()
-    Path(out_png).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out_png, dpi=dpi)
-    plt.close(fig)
+    save_figure(fig, out_png, dpi)
     return True
 
 

@@ -44,7 +44,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from _common import (RESULTS_DIR, SCENE_NAMES, benchmark_case, fit_order, markdown_table, position_errors,  # noqa: E402
-                     pyplot, reference_final, scene_case, total_energy, write_csv)
+                     pyplot, reference_final, save_figure, scene_case, total_energy, write_csv)
 
 __all__ = ["COLUMNS", "ORDER_COLUMNS", "run_case", "classify", "orders", "pareto_plot", "read_csv", "main"]
 
@@ -244,10 +244,7 @@ def pareto_plot(rows: list[dict], case: str, out_png, *, dpi: int = 80) -> bool:
     ax.set_title(f"speed vs error: {case} (lower left is better)")
     ax.grid(True, which="major", alpha=0.3)
     ax.legend(fontsize=6.5, loc="center left", bbox_to_anchor=(1.01, 0.5), frameon=False)
-    fig.tight_layout()
-    Path(out_png).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out_png, dpi=dpi)
-    plt.close(fig)
+    save_figure(fig, out_png, dpi)
     return True
 
 
