@@ -25,6 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
+from ._argtypes import int_at_least
 from .errors import SceneError, SimulationError, SpringsimError
 
 __all__ = ["COMMANDS", "Command", "main", "build_parser"]
@@ -83,24 +84,8 @@ class ProgressBar:
 
 
 # -- run ----------------------------------------------------------------------------------
-def _positive_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be an integer, got {text!r}") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {v}")
-    return v
-
-
-def _nonnegative_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be an integer, got {text!r}") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {v}")
-    return v
+_positive_int = int_at_least(1)
+_nonnegative_int = int_at_least(0)
 
 
 def _positive_float(text: str) -> float:

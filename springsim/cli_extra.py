@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ._argtypes import int_at_least
 from .errors import SceneError, SpringsimError
 
 __all__ = ["plot_command", "render_command", "export_command", "load_trajectory"]
@@ -55,11 +56,7 @@ def _simulate_scene(scene, steps, dt=None, frame_every: int = 1):
         return simulate(scene.model, integ, cfg.dt, int(steps), frame_every=frame_every)
 
 
-def _positive_int(s: str) -> int:
-    v = int(s)
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {v}")
-    return v
+_positive_int = int_at_least(1)
 
 
 class _PlotCommand:
