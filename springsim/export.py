@@ -36,6 +36,12 @@ def _rows(fh, fmt: str, a: np.ndarray) -> None:
         np.savetxt(fh, a, fmt=fmt)
 
 
+def _geometry(q, lines, quads):
+    """Positions (N, 3) float64, segments (L, 2) and quads (Q, 4) int64 from array-likes."""
+    return (np.asarray(q, dtype=np.float64), np.asarray(lines, dtype=np.int64).reshape(-1, 2),
+            np.asarray(quads, dtype=np.int64).reshape(-1, 4))
+
+
 def write_vtk(path, q: np.ndarray, lines: np.ndarray, quads: np.ndarray, *, title: str = "springsim",
               point_data: dict | None = None) -> Path:
     """Write one legacy-VTK ASCII POLYDATA file.
@@ -52,9 +58,7 @@ def write_vtk(path, q: np.ndarray, lines: np.ndarray, quads: np.ndarray, *, titl
     point_data : dict of str -> ndarray (N, 3) or (N,), optional
         Per-point vectors (e.g. velocity [m/s]) or scalars.
     """
-    q = np.asarray(q, dtype=np.float64)
-    lines = np.asarray(lines, dtype=np.int64).reshape(-1, 2)
-    quads = np.asarray(quads, dtype=np.int64).reshape(-1, 4)
+    q, lines, quads = _geometry(q, lines, quads)
     path = Path(path)
     with open(path, "w") as fh:
         fh.write(f"# vtk DataFile Version 3.0\n{title}\nASCII\nDATASET POLYDATA\nPOINTS {len(q)} double\n")
@@ -79,9 +83,7 @@ def write_vtk(path, q: np.ndarray, lines: np.ndarray, quads: np.ndarray, *, titl
 
 def write_obj(path, q: np.ndarray, lines: np.ndarray, quads: np.ndarray) -> Path:
     """Write one Wavefront OBJ: ``v`` per particle, ``f`` per quad, ``l`` per segment (1-based)."""
-    q = np.asarray(q, dtype=np.float64)
-    lines = np.asarray(lines, dtype=np.int64).reshape(-1, 2)
-    quads = np.asarray(quads, dtype=np.int64).reshape(-1, 4)
+    q, lines, quads = _geometry(q, lines, quads)
     path = Path(path)
     with open(path, "w") as fh:
         fh.write(f"# springsim export: {len(q)} vertices, {len(quads)} faces, {len(lines)} lines\n")
@@ -93,9 +95,7 @@ def write_obj(path, q: np.ndarray, lines: np.ndarray, quads: np.ndarray) -> Path
 
 def write_ply(path, q: np.ndarray, lines: np.ndarray, quads: np.ndarray) -> Path:
     """Write one ASCII PLY with ``vertex``, ``face`` (quads) and ``edge`` (segments) elements."""
-    q = np.asarray(q, dtype=np.float64)
-    lines = np.asarray(lines, dtype=np.int64).reshape(-1, 2)
-    quads = np.asarray(quads, dtype=np.int64).reshape(-1, 4)
+    q, lines, quads = _geometry(q, lines, quads)
     path = Path(path)
     with open(path, "w") as fh:
         fh.write("ply\nformat ascii 1.0\ncomment springsim export\n"
