@@ -39,7 +39,7 @@ class LinearSolverAMGCG(IterativeSolver):
         pyamg smoother (default symmetric ``"block_gauss_seidel"``).
     reuse : bool
         Reuse the hierarchy across solves (False: rebuild on every solve).
-    rebuild_factor, rebuild_slack, cooldown
+    rebuild_factor, rebuild_slack, cooldown, max_cooldown
         Stale-hierarchy signal and policy, see :class:`~springsim.linsolve._amg.AMGHierarchy`.
     max_coarse : int
         Coarsest AMG level size in block rows (pyamg's convention).
@@ -52,11 +52,12 @@ class LinearSolverAMGCG(IterativeSolver):
 
     def __init__(self, *, near_nullspace: str = "rigid", fmt: str = "bsr", smoother: str = "block_gauss_seidel",
                  reuse: bool = True, rebuild_factor: float = 2.0, rebuild_slack: int = 4, max_coarse: int = 50,
-                 cooldown: int = 4, sa_options: dict | None = None, **kw):
+                 cooldown: int = 4, max_cooldown: int = 64, sa_options: dict | None = None, **kw):
         super().__init__(**kw)
         self.amg = AMGHierarchy(near_nullspace=near_nullspace, fmt=fmt, symmetry="hermitian", smoother=smoother,
                                 max_coarse=max_coarse, rebuild_factor=rebuild_factor, rebuild_slack=rebuild_slack,
-                                reuse=reuse, cooldown=cooldown, sa_options=sa_options)
+                                reuse=reuse, cooldown=cooldown, max_cooldown=max_cooldown,
+                                sa_options=sa_options)
 
     def _solve(self, A, b, x0):
         x0 = self._initial_guess(A, b, x0)

@@ -61,7 +61,8 @@ class LinearSolverAMGGMRES(IterativeSolver):
     rtol, atol, maxiter, fallback, warm_start
         See :class:`~springsim.linsolve._krylov.IterativeSolver` (``maxiter`` default 300
         inner iterations).
-    near_nullspace, fmt, smoother, reuse, rebuild_factor, rebuild_slack, max_coarse, cooldown, sa_options
+    near_nullspace, fmt, smoother, reuse, rebuild_factor, rebuild_slack, max_coarse, cooldown, max_cooldown,
+    sa_options
         As for :class:`~springsim.linsolve.amg_cg.LinearSolverAMGCG`.
     """
 
@@ -69,12 +70,14 @@ class LinearSolverAMGGMRES(IterativeSolver):
 
     def __init__(self, *, restart: int = 30, near_nullspace: str = "rigid", fmt: str = "bsr",
                  smoother: str = "block_gauss_seidel", reuse: bool = True, rebuild_factor: float = 2.0,
-                 rebuild_slack: int = 4, max_coarse: int = 50, cooldown: int = 4, sa_options: dict | None = None, **kw):
+                 rebuild_slack: int = 4, max_coarse: int = 50, cooldown: int = 4, max_cooldown: int = 64,
+                 sa_options: dict | None = None, **kw):
         super().__init__(**kw)
         self.restart = int(restart)
         self.amg = AMGHierarchy(near_nullspace=near_nullspace, fmt=fmt, symmetry="nonsymmetric", smoother=smoother,
                                 max_coarse=max_coarse, rebuild_factor=rebuild_factor, rebuild_slack=rebuild_slack,
-                                reuse=reuse, cooldown=cooldown, sa_options=sa_options)
+                                reuse=reuse, cooldown=cooldown, max_cooldown=max_cooldown,
+                                sa_options=sa_options)
 
     def _solve(self, A, b, x0):
         x0 = self._initial_guess(A, b, x0)

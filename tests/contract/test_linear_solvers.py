@@ -145,3 +145,42 @@ def test_auto_choice_by_size_and_symmetry():
     assert big.choose(A) == "amg-gmres" and big.choose(S) == "amg-cg"
     res = big.solve(S, bs)
     assert res.method == "auto:amg-cg" and res.converged
+
+
+@pytest.mark.parametrize("bs", [3, 6])
+def test_backward_block_gauss_seidel_matches_pyamg(bs):
+    """The reversed-order backward sweep equals pyamg's backward block Gauss-Seidel sweep."""
+    import scipy.sparse as sp
+    from pyamg.relaxation.relaxation import block_gauss_seidel
+
+    from springsim.linsolve._amg import BackwardBlockGaussSeidel
+
+    rng = np.random.default_rng(bs)
+    nb = 40
+    R = sp.random(nb, nb, density=0.15, random_state=rng) + sp.eye(nb)
+    R = (R + R.T).tocsr()
+    blocks = rng.standard_normal((R.nnz, bs, bs))
+    A = sp.bsr_matrix((blocks, R.indices, R.indptr), shape=(nb * bs, nb * bs))
+    A = (A + A.T + 10 * nb * sp.eye(nb * bs)).tobsr(blocksize=(bs, bs))  # SPD, block diagonally dominant
+    b, x0 = rng.standard_normal(nb * bs), rng.standard_normal(nb * bs)
+    expected = x0.copy()
+    block_gauss_seidel(A, expected, b, sweep="backward", blocksize=bs)
+    x = x0.copy()
+    BackwardBlockGaussSeidel(A)(A, x, b)
+    np.testing.assert_allclose(x, expected, rtol=1e-12, atol=1e-12)
+
+
+def test_amg_reuse_cooldown_backs_off_and_resets():
+    """Each stale rebuild doubles the cooldown (capped); a successful reuse resets it."""
+    from springsim.linsolve._amg import AMGHierarchy
+
+    h = AMGHierarchy(cooldown=2, max_cooldown=8)
+    skips = []
+    for _ in range(4):
+        h.invalidate(stale=True)
+        skips.append(h._skip)
+    assert skips == [2, 4, 8, 8]
+    h._trial = True  # a reused hierarchy served a new matrix within budget
+    h.record(5, fresh=False, ok=True)
+    h.invalidate(stale=True)
+    assert h._skip == 2
