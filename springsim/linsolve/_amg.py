@@ -168,6 +168,7 @@ class AMGHierarchy:
         self._next_cooldown = self.cooldown
         self._skip = 0
         self._trial = False
+        self._aggregates, self._aggregates_key = None, None
         self.version = None
         self.stale_rebuilds = 0
         self.sa_options = dict(sa_options or {})
@@ -202,12 +203,12 @@ class AMGHierarchy:
                 return self._precond, 0.0, False
             self._skip = max(self._skip - 1, 0)
         t0 = time.perf_counter()
-        self._build(A)
+        self._build(A, key)
         self.key = key
         self.version = A.version
         return self._precond, time.perf_counter() - t0, True
 
-    def _build(self, A):
+    def _build(self, A, key=None):
         import pyamg
 
         # a snapshot: the assembler updates its matrix in place, and a hierarchy whose finest
@@ -223,15 +224,19 @@ class AMGHierarchy:
             pre, post = (self.smoother, {"sweep": "forward"}), (self.smoother, {"sweep": "backward"})
         else:
             pre = post = (self.smoother, {})
-        opts = dict(B=B, symmetry=self.symmetry, max_coarse=self.max_coarse, coarse_solver="pinv",
-                    presmoother=pre, postsmoother=post, improve_candidates=None,
-                    strength=("symmetric", {"theta": 0.1}),
-                    smooth=("jacobi", {"omega": 4.0 / 3.0, "weighting": "block"}))
-        # pyamg wants ("method", {kwargs}) tuples; YAML/JSON give lists
-        opts.update({k: tuple(v) if isinstance(v, list) and len(v) == 2 and isinstance(v[0], str) else v
-                     for k, v in self.sa_options.items()})
-        self.ml = pyamg.smoothed_aggregation_solver(M, **opts)
-        ml = self.ml
+        ml = None
+        if self.symmetry == "hermitian" and self.fmt == "bsr" and not self.sa_options:
+            ml = self._build_own(M, B, key, A.pattern, pre, post)
+        if ml is None:
+            opts = dict(B=B, symmetry=self.symmetry, max_coarse=self.max_coarse, coarse_solver="pinv",
+                        presmoother=pre, postsmoother=post, improve_candidates=None,
+                        strength=("symmetric", {"theta": 0.1}),
+                        smooth=("jacobi", {"omega": 4.0 / 3.0, "weighting": "block"}))
+            # pyamg wants ("method", {kwargs}) tuples; YAML/JSON give lists
+            opts.update({k: tuple(v) if isinstance(v, list) and len(v) == 2 and isinstance(v[0], str) else v
+                         for k, v in self.sa_options.items()})
+            ml = pyamg.smoothed_aggregation_solver(M, **opts)
+        self.ml = ml
         if self.smoother == "block_gauss_seidel" and "postsmoother" not in self.sa_options:
             for level in ml.levels[:-1]:
                 if level.A.format == "bsr":
@@ -251,6 +256,27 @@ class AMGHierarchy:
         self._precond = apply
         self.baseline = None
         self.builds += 1
+
+    def _build_own(self, M, B, key, A_pattern, pre, post):
+        """The hierarchy from :func:`~springsim.linsolve._sa.smoothed_aggregation_levels`
+        (Lanczos spectral radius, aggregates kept per matrix pattern); None when its
+        spectral-radius estimate breaks down (``M`` not SPD: pyamg's setup takes over)."""
+        from pyamg.multilevel import MultilevelSolver
+        from pyamg.relaxation.smoothing import change_smoothers
+
+        from ._sa import smoothed_aggregation_levels
+
+        M.symmetry = "hermitian"
+        self._pattern_ref = A_pattern  # held, so that its id (part of ``key``) is not reused
+        aggregates = self._aggregates if self._aggregates_key == key else None
+        try:
+            levels, used = smoothed_aggregation_levels(M, B, max_coarse=self.max_coarse, aggregates=aggregates)
+        except (ArithmeticError, np.linalg.LinAlgError):
+            return None
+        self._aggregates, self._aggregates_key = used, key
+        ml = MultilevelSolver(levels, coarse_solver="pinv")
+        change_smoothers(ml, pre, post)
+        return ml
 
     def record(self, iterations: int, fresh: bool, ok: bool) -> None:
         """Remember the iteration count right after a build (the stale-signal baseline)."""
