@@ -3,7 +3,7 @@
 Usage::
 
     python benchmarks/cloth_grid.py --n 128 --steps 30 --warmup 9 --integrator linearized_implicit \
-        --solver amg-cg --rtol 1e-6 [--jacobian spd] [--json benchmarks/results/cloth_128.json]
+        --solver amg-cg --rtol 1e-6 [--jacobian spd] [--kd 0] [--json benchmarks/results/cloth_128.json]
 
 Runs :func:`springsim.scene.gallery.benchmark_cloth` (n x n particles, edge y = 0 pinned,
 h = 1/60 s) from rest. The first ``--warmup`` steps (symbolic phase, first AMG setup,
@@ -31,16 +31,17 @@ from springsim.integrators import make_integrator
 from springsim.scene.gallery import BENCHMARK_DT, benchmark_cloth
 
 
-def run(n, steps, integrator, solver, rtol, jacobian, warmup, solver_options=None):
+def run(n, steps, integrator, solver, rtol, jacobian, warmup, solver_options=None, kd=0.0, integrator_options=None):
     """Run the benchmark; returns (summary dict, final state)."""
     t0 = time.perf_counter()
-    model = benchmark_cloth(n)
+    model = benchmark_cloth(n, kd=kd)
     build_s = time.perf_counter() - t0
     opts = dict(solver_options or {})
     if rtol is not None and solver not in ("dense", "direct"):
         opts["rtol"] = rtol
     t0 = time.perf_counter()
-    integ = make_integrator(integrator, model, solver=solver, jacobian=jacobian, solver_options=opts)
+    integ = make_integrator(integrator, model, solver=solver, jacobian=jacobian, solver_options=opts,
+                            **dict(integrator_options or {}))
     symbolic_s = time.perf_counter() - t0
     s0, s1 = model.state(), model.state()
     rows = []
@@ -57,7 +58,7 @@ def run(n, steps, integrator, solver, rtol, jacobian, warmup, solver_options=Non
     body = rows[warmup:] or rows
     med = lambda k: float(np.median([r[k] for r in body]))  # noqa: E731
     summary = dict(
-        n=n, particles=model.particle_count, springs=model.spring_count, dofs=int(model.dof_count),
+        n=n, kd=kd, particles=model.particle_count, springs=model.spring_count, dofs=int(model.dof_count),
         free_dofs=int(3 * model.free_particles.size), steps=steps, warmup=warmup, integrator=integrator,
         solver=solver, jacobian=integ.jacobian, rtol=rtol,
         step_s=med("step_s"), assembly_s=med("assembly_s"), solve_s=med("solve_s"), iterations=med("iterations"),
@@ -72,14 +73,14 @@ def run(n, steps, integrator, solver, rtol, jacobian, warmup, solver_options=Non
     return summary, s0
 
 
-def dense_path(n, steps):
+def dense_path(n, steps, kd=0.0):
     """Seconds per step of the dense seed path (linearized implicit Euler, eqs. 3-4): dense
     assembly over all 3N DOFs with identity rows for pinned ones, then ``np.linalg.solve``;
     returns (median step time, final positions)."""
     from springsim.assembly.dense import dense_system
     from springsim.forces import eval_forces, make_force_terms
 
-    model = benchmark_cloth(n)
+    model = benchmark_cloth(n, kd=kd)
     terms = make_force_terms(model, skip_fixed=False)
     q, qd = model.particle_q.copy(), model.particle_qd.copy()
     h, times = BENCHMARK_DT, []
@@ -95,6 +96,18 @@ def dense_path(n, steps):
     return float(np.median(times)), q
 
 
+def _options(pairs):
+    """``["key=value", ...]`` -> dict, values parsed as JSON when possible."""
+    out = {}
+    for kv in pairs:
+        k, v = kv.split("=", 1)
+        try:
+            out[k] = json.loads(v)
+        except json.JSONDecodeError:
+            out[k] = v
+    return out
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--n", type=int, default=64)
@@ -104,8 +117,11 @@ def main(argv=None):
     p.add_argument("--solver", default="amg-cg")
     p.add_argument("--rtol", type=float, default=None)
     p.add_argument("--jacobian", default=None, choices=["exact", "symmetric", "spd"])
+    p.add_argument("--kd", type=float, default=0.0, help="spring damping [N s/m] of the benchmark cloth (default 0)")
     p.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
                    help="extra solver option (value parsed as JSON when possible), e.g. near_nullspace=translations")
+    p.add_argument("--integrator-option", action="append", default=[], metavar="KEY=VALUE",
+                   help="extra integrator option (JSON value when possible), e.g. newton_maxiter=20")
     p.add_argument("--compare-direct", type=int, default=0, metavar="K")
     p.add_argument("--compare-modes", action="store_true",
                    help="also run the three Jacobian modes with this solver and report position differences vs exact")
@@ -114,22 +130,17 @@ def main(argv=None):
     p.add_argument("--json", default=None)
     a = p.parse_args(argv)
     warmup = min(9, a.steps - 1) if a.warmup is None else a.warmup
-    opts = {}
-    for kv in a.option:
-        k, v = kv.split("=", 1)
-        try:
-            opts[k] = json.loads(v)
-        except json.JSONDecodeError:
-            opts[k] = v
-    summary, state = run(a.n, a.steps, a.integrator, a.solver, a.rtol, a.jacobian, warmup, opts)
+    opts, iopts = _options(a.option), _options(a.integrator_option)
+    common = dict(kd=a.kd, integrator_options=iopts)
+    summary, state = run(a.n, a.steps, a.integrator, a.solver, a.rtol, a.jacobian, warmup, opts, **common)
     if a.compare_direct:
-        s_it, q_it = run(a.n, a.compare_direct, a.integrator, a.solver, a.rtol, a.jacobian, 0, opts)
-        s_d, q_d = run(a.n, a.compare_direct, a.integrator, "direct", None, summary["jacobian"], 0)
+        s_it, q_it = run(a.n, a.compare_direct, a.integrator, a.solver, a.rtol, a.jacobian, 0, opts, **common)
+        s_d, q_d = run(a.n, a.compare_direct, a.integrator, "direct", None, summary["jacobian"], 0, **common)
         disp = q_d.particle_q - benchmark_cloth(a.n).particle_q
         diff = np.linalg.norm(q_it.particle_q - q_d.particle_q) / max(np.linalg.norm(disp), 1e-300)
         summary.update(compare_steps=a.compare_direct, rel_diff_vs_direct=float(diff), direct_step_s=s_d["step_s"])
     if a.dense_path:
-        dense_s, q_dense = dense_path(a.n, a.dense_path)
+        dense_s, q_dense = dense_path(a.n, a.dense_path, kd=a.kd)
         summary.update(dense_step_s=dense_s, dense_speedup=dense_s / summary["step_s"])
         print(f"dense seed path: {dense_s:.4g} s/step, sparse {summary['step_s']:.4g} s/step: "
               f"speed-up {dense_s / summary['step_s']:.1f}x")
@@ -137,7 +148,7 @@ def main(argv=None):
         q0 = benchmark_cloth(a.n).particle_q
         finals, modes = {}, {}
         for mode in ("exact", "symmetric", "spd"):
-            sm, st = run(a.n, a.steps, a.integrator, a.solver, a.rtol, mode, warmup, opts)
+            sm, st = run(a.n, a.steps, a.integrator, a.solver, a.rtol, mode, warmup, opts, **common)
             finals[mode] = st.particle_q
             modes[mode] = {k: sm[k] for k in ("step_s", "solve_s", "iterations", "newton_iterations", "newton_failures",
                                               "fallbacks")}
@@ -149,7 +160,7 @@ def main(argv=None):
         for mode, m in modes.items():
             print(f"{mode} | {m['step_s']:.4g} | {m['newton_iterations']:.3g} | {m['newton_failures']} | "
                   f"{m['rel_diff_vs_exact']:.3e}")
-    keys = ["n", "particles", "springs", "dofs", "steps", "solver", "jacobian", "rtol", "step_s", "assembly_s",
+    keys = ["n", "kd", "particles", "springs", "dofs", "steps", "solver", "jacobian", "rtol", "step_s", "assembly_s",
             "solve_s", "iterations", "max_iterations", "newton_iterations", "max_relres", "fallbacks", "peak_rss_mb"]
     if a.compare_direct:
         keys += ["rel_diff_vs_direct", "direct_step_s"]
