@@ -203,6 +203,7 @@ class AMGHierarchy:
                 return self._precond, 0.0, False
             self._skip = max(self._skip - 1, 0)
         t0 = time.perf_counter()
+        self.ml = self._precond = None  # free the old hierarchy first: only one is alive at the peak
         self._build(A, key)
         self.key = key
         self.version = A.version

@@ -70,6 +70,7 @@ class LinearSolverAMGCG(IterativeSolver):
         rebuilt = False
         if not fresh and info.breakdown is not None:  # stale: too many iterations, or breakdown
             self.amg.invalidate(stale=True)
+            precond = None  # drop the old hierarchy before the new one is built (peak memory)
             precond, s2, fresh = self.amg.preconditioner(A)
             setup_s += s2
             t0 += s2
