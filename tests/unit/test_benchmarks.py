@@ -39,7 +39,13 @@ def test_speed_vs_error_quick(bench, tmp_path):
     rows, cols = _read(tmp_path / "speed_vs_error.csv")
     assert list(cols) == mod.COLUMNS
     assert {r["integrator"] for r in rows if r["sweep"] == "dt"} == set(INTEGRATORS)
-    assert {"dt", "newton", "solver"} <= {r["sweep"] for r in rows}
+    assert {r["sweep"] for r in rows} == set(mod.ALL_SWEEPS)
+    adaptive = [r for r in rows if r["sweep"] == "adaptive"]
+    assert {r["method"] for r in adaptive} == {f"{n} adaptive" for n in mod.ADAPTIVE_INTEGRATORS}
+    for r in adaptive:
+        assert r["status"].startswith("ok"), r
+        assert float(r["time_rtol"]) > 0 and int(float(r["steps"])) >= 1 and int(float(r["rejected"])) >= 0
+        assert 0 < float(r["h_min"]) <= float(r["dt"]) <= float(r["h_max"])
     ok = [r for r in rows if r["status"].startswith("ok")]
     assert ok and all(np.isfinite(float(r["err_rms"])) for r in ok)
     orders, ocols = _read(tmp_path / "convergence_orders.csv")
@@ -48,6 +54,40 @@ def test_speed_vs_error_quick(bench, tmp_path):
     assert 1.6 < float(mid[0]["order"]) < 2.4
     assert "| case |" in (tmp_path / "speed_vs_error.md").read_text()
     assert (tmp_path / "pareto_spring.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # --from-csv re-tabulates the same rows (statuses re-derived) without running anything
+    again = tmp_path / "again"
+    assert mod.main(["--from-csv", str(tmp_path / "speed_vs_error.csv"), "--out", str(again)]) == 0
+    rows2, _ = _read(again / "speed_vs_error.csv")
+    assert [(r["method"], r["status"]) for r in rows2] == [(r["method"], r["status"]) for r in rows]
+
+
+def test_speed_vs_error_adaptive_sweep(bench):
+    """The adaptive sweep on the spring over 0.5 s: a tighter time tolerance gives smaller steps and a smaller error."""
+    mod, c = bench["speed_vs_error"], bench["_common"]
+    case = c.scene_case("spring", 0.5)
+    rows = mod.run_case(case, dts=[], newton_tols=[], solver_rtols=[], time_rtols=[1e-2, 1e-5], sweeps=("adaptive",),
+                        log=lambda msg: None)
+    assert [(r["integrator"], r["time_rtol"]) for r in rows] == [
+        (n, tol) for n in mod.ADAPTIVE_INTEGRATORS for tol in (1e-2, 1e-5)]
+    assert set(rows[0]) <= set(mod.COLUMNS)
+    for name in mod.ADAPTIVE_INTEGRATORS:
+        loose, tight = (r for r in rows if r["integrator"] == name)
+        assert loose["status"] == tight["status"] == "ok"
+        assert tight["err_rms"] < 0.2 * loose["err_rms"], (name, loose["err_rms"], tight["err_rms"])
+        assert tight["dt"] < loose["dt"] and tight["steps"] > loose["steps"]
+        assert tight["newton_per_step"] >= 1
+
+
+def test_speed_vs_error_default_bounds(bench):
+    """The bounded default run keeps every sweep's essentials on every case: h = 1/30 ... >= 1/120, adaptive."""
+    mod, c = bench["speed_vs_error"], bench["_common"]
+    cases = c.scene_cases(0.5) + [c.benchmark_case(n, 0.5) for n in (8, 16, 32)]
+    for case in cases:
+        b = mod.default_bounds(case)
+        assert b["min_dt"] <= 1 / 120 and {"dt", "adaptive"} <= set(b["sweeps"]) <= set(mod.ALL_SWEEPS)
+        assert b["time_rtols"] and all(0 < t < 1 for t in b["time_rtols"])
+    with pytest.raises(ValueError, match="sweeps"):
+        mod.run_case(cases[0], dts=[], newton_tols=[], solver_rtols=[], sweeps=("nope",))
 
 
 def test_linear_solve_error_quick(bench, tmp_path):
