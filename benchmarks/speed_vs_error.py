@@ -406,8 +406,8 @@ def main(argv=None) -> int:
     rows = read_csv(a.from_csv) if a.from_csv else []
     for case in cases:
         if a.quick:
-            plan = dict(dts=[1 / 60, 1 / 120], newton_tols=[1e-2], solver_rtols=[1e-2, 1e-8], time_rtols=[1e-2, 1e-5],
-                        sweeps=ALL_SWEEPS, solver_integrators=None)
+            plan = dict(dts=[1 / 60, 1 / 120], newton_tols=[1e-2], solver_rtols=[1e-2, 1e-8],
+                        time_rtols=[1e-2, 1e-5], sweeps=ALL_SWEEPS, solver_integrators=None)
         elif a.full:
             plan = dict(dts=DT_LADDER, newton_tols=NEWTON_TOLS, solver_rtols=SOLVER_RTOLS, time_rtols=TIME_RTOLS,
                         sweeps=ALL_SWEEPS, solver_integrators=None)
