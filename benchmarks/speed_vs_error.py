@@ -376,7 +376,8 @@ def default_bounds(case) -> dict:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--quick", action="store_true", help="tiny run (4x4 cloth, spring scene, 0.05 s, 2 time steps, 2 time tolerances)")
+    p.add_argument("--quick", action="store_true",
+                   help="tiny run (4x4 cloth, spring scene, 0.05 s, 2 time steps, 2 time tolerances)")
     p.add_argument("--full", action="store_true",
                    help="unbounded run: dt down to 1/3840 s, every rtol and time_rtol, every implicit integrator "
                         "in the solver sweep, on every case (long)")
