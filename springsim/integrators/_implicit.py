@@ -47,8 +47,10 @@ class ImplicitIntegrator(Integrator):
         Jacobian mode; default ``spd`` for solvers that need SPD matrices, else ``exact``.
     newton_tol : float
         Stop when ``|dv|_2 < newton_tol`` [m/s] (seed: 1e-5).
-    newton_maxiter : int
-        Iteration limit (seed: 5).
+    newton_maxiter : int or None
+        Iteration limit; default the class's ``default_newton_maxiter`` (seed: 5 for
+        implicit Euler; 20 for BDF2 and TR-BDF2, whose order reduction on an unconverged
+        stage otherwise turns them into implicit Euler at animation steps).
     on_nonconvergence : {"warn", "raise", "ignore"}
         What to do when Newton hits its limit.
     line_search : bool
@@ -62,9 +64,11 @@ class ImplicitIntegrator(Integrator):
     """
 
     implicit = True
+    #: Newton iteration limit when none is given
+    default_newton_maxiter = 5
 
     def __init__(self, model, *, solver="direct", jacobian: str | None = None, newton_tol: float = 1e-5,
-                 newton_maxiter: int = 5, on_nonconvergence: str = "warn", solver_options: dict | None = None,
+                 newton_maxiter: int | None = None, on_nonconvergence: str = "warn", solver_options: dict | None = None,
                  line_search: bool = True, min_step: float = 1.0 / 64, terms=None):
         super().__init__(model, terms=terms)
         self.solver = make_linear_solver(solver, **(solver_options or {}))
@@ -74,6 +78,8 @@ class ImplicitIntegrator(Integrator):
             raise SceneError("solver.jacobian", f"must be one of {', '.join(JACOBIAN_MODES)}, got {jacobian!r}")
         if not newton_tol > 0:
             raise SceneError("solver.newton_tol", f"must be > 0, got {newton_tol}")
+        if newton_maxiter is None:
+            newton_maxiter = self.default_newton_maxiter
         if int(newton_maxiter) != newton_maxiter or newton_maxiter < 1:
             raise SceneError("solver.newton_maxiter", f"must be an integer >= 1, got {newton_maxiter}")
         if on_nonconvergence not in ("warn", "raise", "ignore"):
