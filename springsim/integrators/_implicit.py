@@ -48,9 +48,11 @@ class ImplicitIntegrator(Integrator):
     newton_tol : float
         Stop when ``|dv|_2 < newton_tol`` [m/s] (seed: 1e-5).
     newton_maxiter : int or None
-        Iteration limit; default the class's ``default_newton_maxiter`` (seed: 5 for
-        implicit Euler; 20 for BDF2 and TR-BDF2, whose order reduction on an unconverged
-        stage otherwise turns them into implicit Euler at animation steps).
+        Iteration limit; default the class's ``default_newton_maxiter``: the seed's 5 for
+        implicit Euler, 20 for BDF2 and TR-BDF2. These retake a step whose stage did not
+        converge with implicit Euler, so their limit must let Newton finish: on the 16 x 16
+        benchmark cloth at h = 1/60 s (0.5 s) 5 iterations leave errors of 0.045 m (BDF2)
+        and 0.034 m (TR-BDF2), 20 give 0.020 m and 0.0057 m in less CPU time.
     on_nonconvergence : {"warn", "raise", "ignore"}
         What to do when Newton hits its limit.
     line_search : bool

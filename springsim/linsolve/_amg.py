@@ -58,7 +58,7 @@ import time
 
 import numpy as np
 
-__all__ = ["AMGHierarchy", "BackwardBlockGaussSeidel", "rigid_body_modes", "translation_modes"]
+__all__ = ["AMGHierarchy", "AMGKrylovSolver", "BackwardBlockGaussSeidel", "rigid_body_modes", "translation_modes"]
 
 
 def rigid_body_modes(positions: np.ndarray) -> np.ndarray:
@@ -304,3 +304,67 @@ class AMGHierarchy:
         return {"levels": [int(lv.A.shape[0]) for lv in self.ml.levels],
                 "operator_complexity": float(self.ml.operator_complexity()), "builds": self.builds,
                 "stale_rebuilds": self.stale_rebuilds}
+
+
+class AMGKrylovSolver:
+    """Mixin for the AMG-preconditioned Krylov solvers (``amg-cg``, ``amg-gmres``): their
+    shared options, the hierarchy (``self.amg``) and the stale-hierarchy protocol.
+
+    Subclasses (placed before :class:`~springsim.linsolve._krylov.IterativeSolver` in the
+    bases) set ``amg_symmetry`` and implement ``_krylov(A, b, precond, x0, maxiter) -> (x, KrylovInfo)``;
+    their ``_solve`` calls :meth:`_amg_solve`.
+
+    Parameters
+    ----------
+    near_nullspace : {"rigid", "translations"}
+        AMG candidate vectors: six rigid-body modes at the current positions, or the
+        three translations.
+    fmt : {"bsr", "csr"}
+        Matrix format given to pyamg.
+    smoother : str
+        pyamg smoother (default symmetric ``"block_gauss_seidel"``).
+    reuse : bool
+        Reuse the hierarchy across solves (False: rebuild on every solve).
+    rebuild_factor, rebuild_slack, cooldown, max_cooldown
+        Stale-hierarchy signal and policy, see :class:`AMGHierarchy`.
+    max_coarse : int
+        Coarsest AMG level size in block rows (pyamg's convention).
+    sa_options : dict, optional
+        Extra keywords for :func:`pyamg.smoothed_aggregation_solver`.
+    """
+
+    amg_symmetry = "hermitian"
+
+    def __init__(self, *, near_nullspace: str = "rigid", fmt: str = "bsr", smoother: str = "block_gauss_seidel",
+                 reuse: bool = True, rebuild_factor: float = 2.0, rebuild_slack: int = 4, max_coarse: int = 50,
+                 cooldown: int = 4, max_cooldown: int = 64, sa_options: dict | None = None, **kw):
+        super().__init__(**kw)
+        self.amg = AMGHierarchy(near_nullspace=near_nullspace, fmt=fmt, symmetry=self.amg_symmetry,
+                                smoother=smoother, max_coarse=max_coarse, rebuild_factor=rebuild_factor,
+                                rebuild_slack=rebuild_slack, reuse=reuse, cooldown=cooldown,
+                                max_cooldown=max_cooldown, sa_options=sa_options)
+
+    def _amg_solve(self, A, b, x0, maxiter: int):
+        """Krylov solve with the current (or a fresh) hierarchy; a reused hierarchy that
+        exceeds its iteration budget or breaks down is rebuilt and the solve continued
+        from the iterate reached. Returns the solver's result (fallback applied)."""
+        precond, setup_s, fresh = self.amg.preconditioner(A)
+        t0 = time.perf_counter()
+        x, info = self._krylov(A, b, precond, x0, self.amg.budget(maxiter, fresh))
+        rebuilt = False
+        if not fresh and info.breakdown is not None:  # stale: too many iterations, or breakdown
+            self.amg.invalidate(stale=True)
+            precond = None  # drop the old hierarchy before the new one is built (peak memory)
+            precond, s2, fresh = self.amg.preconditioner(A)
+            setup_s += s2
+            t0 += s2
+            restart = x if (np.all(np.isfinite(x)) and info.residual < 1.0) else x0
+            x, info2 = self._krylov(A, b, precond, restart, maxiter)
+            self.amg.record(info2.iterations, fresh, info2.breakdown is None)
+            info2.iterations += info.iterations
+            info, rebuilt = info2, True
+        else:
+            self.amg.record(info.iterations, fresh, info.breakdown is None)
+        solve_s = time.perf_counter() - t0
+        details = dict(self.amg.describe(), rebuilt=fresh, stale_rebuild=rebuilt, warm_start=x0 is not None)
+        return self._finish(A, b, x, info, setup_s, solve_s, details)

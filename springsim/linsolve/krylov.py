@@ -10,12 +10,10 @@ afterwards, and a miss (or NaN) falls back to the direct solver with a warning.
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import scipy.sparse.linalg as spla
 
-from ._amg import AMGHierarchy
+from ._amg import AMGKrylovSolver
 from ._krylov import IterativeSolver, KrylovInfo
 
 __all__ = ["LinearSolverAMGGMRES", "gmres"]
@@ -51,7 +49,7 @@ def gmres(M, b, precond, x0, *, rtol: float, atol: float, maxiter: int, restart:
     return x, KrylovInfo(count[0], res, breakdown)
 
 
-class LinearSolverAMGGMRES(IterativeSolver):
+class LinearSolverAMGGMRES(AMGKrylovSolver, IterativeSolver):
     """AMG-preconditioned restarted GMRES for non-symmetric systems.
 
     Parameters
@@ -63,43 +61,18 @@ class LinearSolverAMGGMRES(IterativeSolver):
         inner iterations).
     near_nullspace, fmt, smoother, reuse, rebuild_factor, rebuild_slack, max_coarse, cooldown, max_cooldown,
     sa_options
-        As for :class:`~springsim.linsolve.amg_cg.LinearSolverAMGCG`.
+        See :class:`~springsim.linsolve._amg.AMGKrylovSolver`.
     """
 
     name = "amg-gmres"
+    amg_symmetry = "nonsymmetric"
 
-    def __init__(self, *, restart: int = 30, near_nullspace: str = "rigid", fmt: str = "bsr",
-                 smoother: str = "block_gauss_seidel", reuse: bool = True, rebuild_factor: float = 2.0,
-                 rebuild_slack: int = 4, max_coarse: int = 50, cooldown: int = 4, max_cooldown: int = 64,
-                 sa_options: dict | None = None, **kw):
+    def __init__(self, *, restart: int = 30, **kw):
         super().__init__(**kw)
         self.restart = int(restart)
-        self.amg = AMGHierarchy(near_nullspace=near_nullspace, fmt=fmt, symmetry="nonsymmetric", smoother=smoother,
-                                max_coarse=max_coarse, rebuild_factor=rebuild_factor, rebuild_slack=rebuild_slack,
-                                reuse=reuse, cooldown=cooldown, max_cooldown=max_cooldown,
-                                sa_options=sa_options)
+
+    def _krylov(self, A, b, precond, x0, maxiter):
+        return gmres(A.bsr, b, precond, x0, rtol=self.rtol, atol=self.atol, maxiter=maxiter, restart=self.restart)
 
     def _solve(self, A, b, x0):
-        x0 = self._initial_guess(A, b, x0)
-        M = A.bsr
-        maxiter = self._limit(300)
-        opts = dict(rtol=self.rtol, atol=self.atol, maxiter=maxiter, restart=self.restart)
-        precond, setup_s, fresh = self.amg.preconditioner(A)
-        t0 = time.perf_counter()
-        x, info = gmres(M, b, precond, x0, **dict(opts, maxiter=self.amg.budget(maxiter, fresh)))
-        rebuilt = False
-        if not fresh and info.breakdown is not None:  # stale: too many iterations, or breakdown
-            self.amg.invalidate(stale=True)
-            precond = None  # drop the old hierarchy before the new one is built (peak memory)
-            precond, s2, fresh = self.amg.preconditioner(A)
-            setup_s += s2
-            t0 += s2
-            restart = x if (np.all(np.isfinite(x)) and info.residual < 1.0) else x0
-            x, info2 = gmres(M, b, precond, restart, **opts)
-            self.amg.record(info2.iterations, fresh, info2.breakdown is None)
-            info2.iterations += info.iterations
-            info, rebuilt = info2, True
-        else:
-            self.amg.record(info.iterations, fresh, info.breakdown is None)
-        details = dict(self.amg.describe(), rebuilt=fresh, stale_rebuild=rebuilt, warm_start=x0 is not None)
-        return self._finish(A, b, x, info, setup_s, time.perf_counter() - t0, details)
+        return self._amg_solve(A, b, self._initial_guess(A, b, x0), self._limit(300))
