@@ -44,7 +44,8 @@ class ImplicitIntegrator(Integrator):
     solver : str or LinearSolver
         Linear solver name (see :data:`springsim.linsolve.LINEAR_SOLVERS`) or instance.
     jacobian : {"exact", "symmetric", "spd"} or None
-        Jacobian mode; default ``spd`` for solvers that need SPD matrices, else ``exact``.
+        Jacobian mode; default ``spd`` for solvers that need SPD matrices at this size
+        (:meth:`~springsim.linsolve.LinearSolver.needs_spd_for`), else ``exact``.
     newton_tol : float
         Stop when ``|dv|_2 < newton_tol`` [m/s] (seed: 1e-5).
     newton_maxiter : int or None
@@ -75,7 +76,7 @@ class ImplicitIntegrator(Integrator):
         super().__init__(model, terms=terms)
         self.solver = make_linear_solver(solver, **(solver_options or {}))
         if jacobian is None:
-            jacobian = "spd" if self.solver.needs_spd else "exact"
+            jacobian = "spd" if self.solver.needs_spd_for(3 * model.free_count) else "exact"
         if jacobian not in JACOBIAN_MODES:
             raise SceneError("solver.jacobian", f"must be one of {', '.join(JACOBIAN_MODES)}, got {jacobian!r}")
         if not newton_tol > 0:

@@ -129,6 +129,11 @@ class LinearSolver(ABC):
         self.atol = float(atol)
         self.maxiter = maxiter
 
+    def needs_spd_for(self, dofs: int) -> bool:
+        """Whether systems of ``dofs`` unknowns need the ``spd`` Jacobian mode with this solver
+        (integrators choose their default mode with it); ``needs_spd`` unless overridden."""
+        return self.needs_spd
+
     def solve(self, A, b: np.ndarray, *, x0: np.ndarray | None = None) -> LinearSolveResult:
         """Solve ``A x = b``; ``x0`` is an initial guess for iterative methods."""
         A = as_system_matrix(A)

@@ -25,8 +25,11 @@ on the benchmark cloth, steps 10-30, rtol 1e-6; see docs/solvers.md):
   ``amg-cg``. If the matrix is indefinite CG detects it and falls back to ``direct``.
 * larger and non-symmetric (``exact`` with damping): ``amg-gmres``.
 
-``needs_spd`` is True, so implicit integrators give ``auto`` the ``spd`` mode by
-default (pass ``jacobian="exact"`` for Newton's quadratic convergence on small systems).
+``needs_spd`` is True, but :meth:`LinearSolverAuto.needs_spd_for` says so only above
+``direct_max_dofs``: implicit integrators give ``auto`` the ``exact`` mode on systems the
+direct solver takes (Newton's quadratic convergence, and the true gravitational Jacobian:
+with ``spd`` implicit Euler at h = 1/60 s is unstable on ``scenes/three_body.yaml``), and
+the ``spd`` mode on larger ones, where CG needs it.
 """
 
 from __future__ import annotations
@@ -68,6 +71,9 @@ class LinearSolverAuto(LinearSolver):
             "amg-cg": LinearSolverAMGCG(rtol=self.rtol, atol=self.atol, maxiter=maxiter, fallback=fallback),
             "amg-gmres": LinearSolverAMGGMRES(rtol=self.rtol, atol=self.atol, maxiter=maxiter, fallback=fallback),
         }
+
+    def needs_spd_for(self, dofs: int) -> bool:
+        return dofs > self.direct_max_dofs
 
     def choose(self, A) -> str:
         """Name of the solver used for ``A``."""

@@ -184,3 +184,15 @@ def test_amg_reuse_cooldown_backs_off_and_resets():
     h.record(5, fresh=False, ok=True)
     h.invalidate(stale=True)
     assert h._skip == 2
+
+
+def test_auto_asks_for_spd_only_where_it_uses_cg():
+    """Integrators default to ``exact`` with ``auto`` on systems its direct solver takes, ``spd`` above."""
+    from springsim.integrators import make_integrator
+
+    model = benchmark_cloth(8)  # 168 free DOFs
+    assert make_integrator("implicit_euler", model, solver="auto").jacobian == "exact"
+    small = make_integrator("implicit_euler", model, solver="auto", solver_options={"direct_max_dofs": 100})
+    assert small.jacobian == "spd"
+    assert make_integrator("implicit_euler", model, solver="amg-cg").jacobian == "spd"
+    assert make_integrator("implicit_euler", model, solver="direct").jacobian == "exact"
