@@ -28,6 +28,8 @@ time_rtol down to 1e-5; 16 x 16 down to 1/480 s, time_rtol down to 1e-4 and solv
 1e-10 on the scenes and 8 x 8. Measured (443 runs, ``OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1``):
 303 s of CPU (255 s user + 47 s system) in 396 s wall, with other agents' benchmarks running on
 the 2 cores (load average 2.3-3.1); scenes 70 s, 8 x 8 32 s, 16 x 16 104 s, 32 x 32 178 s wall.
+Re-run after the BDF2/TR-BDF2 Newton limit went to 20: 269 s of CPU (225 s user + 44 s system)
+in 507 s wall at load 3.1-4.4.
 (The previous default, without the adaptive sweep but with dt down to 1/960 s on 16 x 16 and
 1/480 s on 32 x 32 and the full solver sweep on 32 x 32, took 533 s wall at load ~1 and ~19 min at
 load 4.) ``--full`` lifts all bounds (dt down to 1/3840 s, every rtol and time_rtol, every implicit
@@ -41,7 +43,7 @@ of convergence are fitted on the dt ladder. Writes ``results/speed_vs_error.csv`
 
 Usage::
 
-    python benchmarks/speed_vs_error.py            # default: bounded, ~5 min of one core
+    python benchmarks/speed_vs_error.py            # default: bounded, ~4.5-5 min of CPU
     python benchmarks/speed_vs_error.py --quick    # seconds (used by the tests)
     python benchmarks/speed_vs_error.py --full     # every ladder on every case; hours (not measured)
     python benchmarks/speed_vs_error.py --sweeps adaptive --cloth 16 --scenes   # one sweep, one case
