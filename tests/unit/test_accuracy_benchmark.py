@@ -1,0 +1,68 @@
+"""``benchmarks/accuracy_at_animation_steps.py`` at a tiny size: it runs, writes its tables,
+caches the reference and measures the growth of a perturbation."""
+
+from __future__ import annotations
+
+import csv
+import importlib
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+BENCH = Path(__file__).resolve().parents[2] / "benchmarks"
+
+
+@pytest.fixture()
+def acc(tmp_path, monkeypatch):
+    sys.path.insert(0, str(BENCH))
+    try:
+        mod = importlib.import_module("accuracy_at_animation_steps")
+    finally:
+        sys.path.remove(str(BENCH))
+    monkeypatch.setattr(mod, "RESULTS", tmp_path)
+    monkeypatch.setitem(mod.SOLVER, "name", "direct")
+    monkeypatch.setitem(mod.SOLVER, "ref_name", "direct")
+    return mod
+
+
+def _rows(path):
+    with open(path) as fh:
+        return list(csv.DictReader(fh))
+
+
+def test_run_size_writes_tables_and_caches_the_reference(acc, tmp_path, capsys):
+    acc.run_size(3, 40, [10, 20], [1e-2], fixed_methods=("implicit_euler", "tr_bdf2"), adaptive_methods=("tr_bdf2",))
+    assert (tmp_path / "accuracy_reference_n3_steps40.npz").exists()
+    assert "reference saved" in capsys.readouterr().out
+    h60 = _rows(tmp_path / "accuracy_at_animation_steps_h60_n3.csv")
+    assert [r["method"] for r in h60] == ["implicit_euler", "bdf2", "tr_bdf2", "trapezoidal"]
+    err = {r["method"]: float(r["rms_err_m"]) for r in h60}
+    assert all(np.isfinite(e) and e >= 0 for e in err.values())
+    assert err["tr_bdf2"] < err["implicit_euler"]  # second order beats first order at the same step
+    sweep = _rows(tmp_path / "accuracy_at_animation_steps_sweep_n3.csv")
+    assert {r["method"] for r in sweep} == {"implicit_euler", "tr_bdf2", "tr_bdf2+adaptive"}
+    assert set(sweep[0]) == {"n", "method", "h_or_tol", "mean_h_s", "rms_err_m", "cpu_per_sim_s", "newton_failures"}
+    ie = [float(r["rms_err_m"]) for r in sweep if r["method"] == "implicit_euler"]
+    assert ie[1] < ie[0]  # halving the step reduces the error
+    cost = _rows(tmp_path / "accuracy_at_animation_steps_cost_n3.csv")
+    assert [r["method"] for r in cost] == ["implicit_euler", "tr_bdf2", "tr_bdf2+adaptive"]
+    # a second run loads the saved reference instead of recomputing it
+    acc.run_size(3, 40, [10], [1e-2], sweep=False)
+    assert "reference loaded" in capsys.readouterr().out
+
+
+def test_sensitivity_starts_at_the_perturbation(acc, tmp_path):
+    acc.sensitivity(3, 20, delta=1e-9, frames=4)
+    rows = _rows(tmp_path / "accuracy_at_animation_steps_sensitivity_n3.csv")
+    assert float(rows[0]["t_s"]) == 0.0
+    assert float(rows[0]["rms_diff_m"]) == pytest.approx(1e-9)
+    assert float(rows[-1]["t_s"]) == pytest.approx(acc.T_END)
+    assert all(np.isfinite(float(r["rms_diff_m"])) for r in rows)
+
+
+def test_command_line_selects_solvers(acc, tmp_path):
+    acc.main(["--sensitivity", "3", "10", "--solver", "direct", "--ref-solver", "dense"])
+    assert acc.SOLVER["name"] == "direct" and acc.SOLVER["ref_name"] == "dense"
+    assert (tmp_path / "accuracy_at_animation_steps_sensitivity_n3.csv").exists()
