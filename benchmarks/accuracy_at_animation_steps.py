@@ -35,6 +35,9 @@ Usage::
     python benchmarks/accuracy_at_animation_steps.py --sizes 32 --ref-steps 4680 --validate-n 0 --solver amg-cg \
         --skip-h60 --sweep-steps 70 140 280 560 1170 2340 4680           # 1 cm and 1 mm costs
 
+``--t-end T`` changes the horizon (output files and the saved reference get a ``_T<T>`` suffix);
+``--sensitivity N STEPS`` only measures how a 1e-9 m perturbation of the start grows.
+
 Writes ``benchmarks/results/accuracy_at_animation_steps_*.csv``.
 """
 
@@ -56,7 +59,9 @@ from springsim.reference import reference_trajectory
 from springsim.scene.gallery import benchmark_cloth
 
 RESULTS = Path(__file__).resolve().parent / "results"
-T_END = 1.17
+T_DEFAULT = 1.17
+#: horizon [s] (``--t-end``)
+T_END = T_DEFAULT
 H_ANIM = 1.0 / 60.0
 METHODS = ("implicit_euler", "bdf2", "tr_bdf2")
 #: Newton iteration limit of every run (the seed's 5 leaves 13-18 of 70 steps unconverged on the
@@ -136,9 +141,14 @@ def table(title, header, rows):
         print("| " + " | ".join(f"{x:.3g}" if isinstance(x, float) else str(x) for x in r) + " |")
 
 
+def horizon_tag():
+    """File-name suffix of a non-default horizon (``--t-end``)."""
+    return "" if T_END == T_DEFAULT else f"_T{T_END:g}"
+
+
 def write_csv(name, header, rows):
     RESULTS.mkdir(parents=True, exist_ok=True)
-    with open(RESULTS / f"accuracy_at_animation_steps_{name}.csv", "w", newline="") as fh:
+    with open(RESULTS / f"accuracy_at_animation_steps_{name}{horizon_tag()}.csv", "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(header)
         w.writerows(rows)
@@ -184,7 +194,7 @@ def reference(model, n, ref_steps, recompute=False):
 
     Returns ``q_ref, v_ref, q_twin, info`` (``info``: CPU seconds, solver, steps).
     """
-    path = RESULTS / f"accuracy_reference_n{n}_steps{ref_steps}.npz"
+    path = RESULTS / f"accuracy_reference_n{n}_steps{ref_steps}{horizon_tag()}.npz"
     if path.exists() and not recompute:
         d = np.load(path)
         info = {k: d[k].item() for k in ("cpu_ref", "cpu_twin", "solver", "ref_steps")}
@@ -343,9 +353,15 @@ def main(argv=None):
     p.add_argument("--adaptive-methods", nargs="*", default=["bdf2", "tr_bdf2"])
     p.add_argument("--recompute-ref", action="store_true", help="ignore a saved reference")
     p.add_argument("--skip-spring", action="store_true", help="skip the undamped-spring energy table")
+    p.add_argument("--t-end", type=float, default=T_DEFAULT,
+                   help=f"horizon [s] (default {T_DEFAULT}; other values tag the output files _T<t>)")
     p.add_argument("--sensitivity", type=int, nargs=2, metavar=("N", "STEPS"),
                    help="only the perturbation-growth run of the N x N cloth with STEPS steps over T")
     a = p.parse_args(argv)
+    global T_END
+    if not (a.t_end > 0 and np.isfinite(a.t_end)):
+        p.error(f"--t-end: must be a finite number > 0, got {a.t_end}")
+    T_END = a.t_end
     SOLVER.update(name=a.solver, rtol=a.linear_rtol, ref_name=a.ref_solver or a.solver)
     warnings.simplefilter("ignore")
     print(f"accuracy at animation steps: T = {T_END} s, h_anim = 1/60 s, CPU = time.process_time()")

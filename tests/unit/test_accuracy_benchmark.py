@@ -66,3 +66,12 @@ def test_command_line_selects_solvers(acc, tmp_path):
     acc.main(["--sensitivity", "3", "10", "--solver", "direct", "--ref-solver", "dense"])
     assert acc.SOLVER["name"] == "direct" and acc.SOLVER["ref_name"] == "dense"
     assert (tmp_path / "accuracy_at_animation_steps_sensitivity_n3.csv").exists()
+
+
+def test_t_end_tags_the_output(acc, tmp_path, monkeypatch):
+    monkeypatch.setattr(acc, "T_END", acc.T_END)  # restored after the test
+    acc.main(["--t-end", "0.2", "--sensitivity", "3", "10"])
+    rows = _rows(tmp_path / "accuracy_at_animation_steps_sensitivity_n3_T0.2.csv")
+    assert float(rows[-1]["t_s"]) == pytest.approx(0.2)
+    with pytest.raises(SystemExit):
+        acc.main(["--t-end", "-1", "--sensitivity", "3", "10"])
