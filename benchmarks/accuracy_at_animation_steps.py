@@ -316,7 +316,7 @@ def sensitivity(n, steps, delta=1e-9, method="tr_bdf2", frames=10):
     header = ["n", "method", "h_s", "t_s", "rms_diff_m"]
     table(f"n = {n}: growth of a {delta:g} m perturbation of the start ({method}, h = {T_END / steps * 1e3:.3g} ms)",
           header, rows)
-    write_csv(f"sensitivity_n{n}", header, rows)
+    write_csv(f"sensitivity_n{n}_delta{delta:g}", header, rows)
 
 
 def cost_to_reach(runs, target):
@@ -357,6 +357,7 @@ def main(argv=None):
                    help=f"horizon [s] (default {T_DEFAULT}; other values tag the output files _T<t>)")
     p.add_argument("--sensitivity", type=int, nargs=2, metavar=("N", "STEPS"),
                    help="only the perturbation-growth run of the N x N cloth with STEPS steps over T")
+    p.add_argument("--delta", type=float, default=1e-9, help="perturbation of --sensitivity [m] (default 1e-9)")
     a = p.parse_args(argv)
     global T_END
     if not (a.t_end > 0 and np.isfinite(a.t_end)):
@@ -366,7 +367,7 @@ def main(argv=None):
     warnings.simplefilter("ignore")
     print(f"accuracy at animation steps: T = {T_END} s, h_anim = 1/60 s, CPU = time.process_time()")
     if a.sensitivity:
-        sensitivity(*a.sensitivity)
+        sensitivity(*a.sensitivity, delta=a.delta)
         return
     if not (a.only_adaptive or a.skip_spring):
         spring_energy()

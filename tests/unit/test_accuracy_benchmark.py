@@ -55,7 +55,7 @@ def test_run_size_writes_tables_and_caches_the_reference(acc, tmp_path, capsys):
 
 def test_sensitivity_starts_at_the_perturbation(acc, tmp_path):
     acc.sensitivity(3, 20, delta=1e-9, frames=4)
-    rows = _rows(tmp_path / "accuracy_at_animation_steps_sensitivity_n3.csv")
+    rows = _rows(tmp_path / "accuracy_at_animation_steps_sensitivity_n3_delta1e-09.csv")
     assert float(rows[0]["t_s"]) == 0.0
     assert float(rows[0]["rms_diff_m"]) == pytest.approx(1e-9)
     assert float(rows[-1]["t_s"]) == pytest.approx(acc.T_END)
@@ -65,13 +65,13 @@ def test_sensitivity_starts_at_the_perturbation(acc, tmp_path):
 def test_command_line_selects_solvers(acc, tmp_path):
     acc.main(["--sensitivity", "3", "10", "--solver", "direct", "--ref-solver", "dense"])
     assert acc.SOLVER["name"] == "direct" and acc.SOLVER["ref_name"] == "dense"
-    assert (tmp_path / "accuracy_at_animation_steps_sensitivity_n3.csv").exists()
+    assert (tmp_path / "accuracy_at_animation_steps_sensitivity_n3_delta1e-09.csv").exists()
 
 
 def test_t_end_tags_the_output(acc, tmp_path, monkeypatch):
     monkeypatch.setattr(acc, "T_END", acc.T_END)  # restored after the test
     acc.main(["--t-end", "0.2", "--sensitivity", "3", "10"])
-    rows = _rows(tmp_path / "accuracy_at_animation_steps_sensitivity_n3_T0.2.csv")
+    rows = _rows(tmp_path / "accuracy_at_animation_steps_sensitivity_n3_delta1e-09_T0.2.csv")
     assert float(rows[-1]["t_s"]) == pytest.approx(0.2)
     with pytest.raises(SystemExit):
         acc.main(["--t-end", "-1", "--sensitivity", "3", "10"])
