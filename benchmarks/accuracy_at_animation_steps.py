@@ -192,19 +192,32 @@ def spring_energy():
 def reference(model, n, ref_steps, recompute=False):
     """TR-BDF2 reference and its half-step twin at ``T_END``, cached in ``RESULTS``.
 
+    The twin is the saved reference with ``ref_steps // 2`` steps when there is one (the
+    same computation), so refining a reference by halving its step costs one new run.
     Returns ``q_ref, v_ref, q_twin, info`` (``info``: CPU seconds, solver, steps).
     """
-    path = RESULTS / f"accuracy_reference_n{n}_steps{ref_steps}{horizon_tag()}.npz"
-    if path.exists() and not recompute:
+    def cached(steps):
+        path = RESULTS / f"accuracy_reference_n{n}_steps{steps}{horizon_tag()}.npz"
+        if not path.exists() or recompute:
+            return path, None
         d = np.load(path)
-        info = {k: d[k].item() for k in ("cpu_ref", "cpu_twin", "solver", "ref_steps")}
-        print(f"reference loaded from {path.name} (computed with solver {info['solver']})", flush=True)
-        return d["q_ref"], d["v_ref"], d["q_twin"], info
+        return path, (d["q_ref"], d["v_ref"], d["q_twin"],
+                      {k: d[k].item() for k in ("cpu_ref", "cpu_twin", "solver", "ref_steps")})
+
+    path, hit = cached(ref_steps)
+    if hit is not None:
+        print(f"reference loaded from {path.name} (computed with solver {hit[3]['solver']})", flush=True)
+        return hit
     kw = dict(ref=True, newton_tol=1e-8, newton_maxiter=20)
     q_ref, v_ref, cpu_ref, tr = fixed_run(model, "tr_bdf2", ref_steps, **kw)
     fails = sum(not s.newton_converged for s in tr.stats)
-    q_twin, _, cpu_twin, tr2 = fixed_run(model, "tr_bdf2", ref_steps // 2, **kw)
-    fails += sum(not s.newton_converged for s in tr2.stats)
+    twin_path, twin = cached(ref_steps // 2)
+    if twin is not None:
+        q_twin, cpu_twin = twin[0], twin[3]["cpu_ref"]
+        print(f"twin loaded from {twin_path.name}", flush=True)
+    else:
+        q_twin, _, cpu_twin, tr2 = fixed_run(model, "tr_bdf2", ref_steps // 2, **kw)
+        fails += sum(not s.newton_converged for s in tr2.stats)
     if fails:
         print(f"WARNING: {fails} reference steps missed the Newton tolerance", flush=True)
     info = {"cpu_ref": cpu_ref, "cpu_twin": cpu_twin, "solver": SOLVER["ref_name"], "ref_steps": ref_steps}

@@ -75,3 +75,12 @@ def test_t_end_tags_the_output(acc, tmp_path, monkeypatch):
     assert float(rows[-1]["t_s"]) == pytest.approx(0.2)
     with pytest.raises(SystemExit):
         acc.main(["--t-end", "-1", "--sensitivity", "3", "10"])
+
+
+def test_refined_reference_reuses_the_saved_one_as_twin(acc, tmp_path, capsys):
+    model = acc.cloth(3)
+    q20, _, _, _ = acc.reference(model, 3, 20)
+    q40, _, twin, info = acc.reference(model, 3, 40)
+    assert "twin loaded from accuracy_reference_n3_steps20.npz" in capsys.readouterr().out
+    np.testing.assert_array_equal(twin, q20)
+    assert info["ref_steps"] == 40 and acc.rms(q40, twin) < acc.rms(q20, model.particle_q)
