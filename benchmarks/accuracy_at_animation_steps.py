@@ -66,7 +66,7 @@ H_ANIM = 1.0 / 60.0
 METHODS = ("implicit_euler", "bdf2", "tr_bdf2")
 #: Newton iteration limit of every run (the seed's 5 leaves 13-18 of 70 steps unconverged on the
 #: n = 32 cloth at h = 1/60 s for implicit Euler and BDF2; 20 converges them, so errors are the methods')
-NEWTON_MAXITER = 20
+NEWTON_MAXITER = NEWTON_DEFAULT = 20
 #: linear solver of every run (set from the command line): name, rtol of method runs, rtol of the reference
 SOLVER = {"name": "direct", "rtol": 1e-6, "ref_name": "direct", "ref_rtol": 1e-10}
 
@@ -305,7 +305,8 @@ def h60_table(model, n, q_ref, v_ref, ref_err, methods):
     ratios = "; ".join(f"IE/{m} error ratio {err['implicit_euler'] / err[m]:.1f}" for m in err
                        if m != "implicit_euler" and "implicit_euler" in err)
     table(f"n = {n}: h = 1/60 s over {T_END} s (|ref - twin| = {ref_err:.1e} m; {ratios})", header, rows)
-    write_csv(f"h60_n{n}", header, rows)
+    tag = "" if NEWTON_MAXITER == NEWTON_DEFAULT else f"_newton{NEWTON_MAXITER}"
+    write_csv(f"h60_n{n}{tag}", header, rows)
 
 
 def sensitivity(n, steps, delta=1e-9, method="tr_bdf2", frames=10):
@@ -366,13 +367,16 @@ def main(argv=None):
     p.add_argument("--adaptive-methods", nargs="*", default=["bdf2", "tr_bdf2"])
     p.add_argument("--recompute-ref", action="store_true", help="ignore a saved reference")
     p.add_argument("--skip-spring", action="store_true", help="skip the undamped-spring energy table")
+    p.add_argument("--newton-maxiter", type=int, default=NEWTON_DEFAULT,
+                   help=f"Newton iteration limit of the method runs (default {NEWTON_DEFAULT})")
     p.add_argument("--t-end", type=float, default=T_DEFAULT,
                    help=f"horizon [s] (default {T_DEFAULT}; other values tag the output files _T<t>)")
     p.add_argument("--sensitivity", type=int, nargs=2, metavar=("N", "STEPS"),
                    help="only the perturbation-growth run of the N x N cloth with STEPS steps over T")
     p.add_argument("--delta", type=float, default=1e-9, help="perturbation of --sensitivity [m] (default 1e-9)")
     a = p.parse_args(argv)
-    global T_END
+    global T_END, NEWTON_MAXITER
+    NEWTON_MAXITER = a.newton_maxiter
     if not (a.t_end > 0 and np.isfinite(a.t_end)):
         p.error(f"--t-end: must be a finite number > 0, got {a.t_end}")
     T_END = a.t_end

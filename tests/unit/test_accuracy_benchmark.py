@@ -84,3 +84,13 @@ def test_refined_reference_reuses_the_saved_one_as_twin(acc, tmp_path, capsys):
     assert "twin loaded from accuracy_reference_n3_steps20.npz" in capsys.readouterr().out
     np.testing.assert_array_equal(twin, q20)
     assert info["ref_steps"] == 40 and acc.rms(q40, twin) < acc.rms(q20, model.particle_q)
+
+
+def test_newton_limit_option(acc, tmp_path, monkeypatch):
+    monkeypatch.setattr(acc, "NEWTON_MAXITER", acc.NEWTON_MAXITER)
+    monkeypatch.setattr(acc, "T_END", acc.T_END)
+    acc.main(["--sizes", "3", "--ref-steps", "20", "--validate-n", "0", "--no-sweep", "--skip-spring",
+              "--h60-methods", "bdf2", "--newton-maxiter", "7", "--t-end", "0.2"])
+    assert acc.NEWTON_MAXITER == 7
+    rows = _rows(tmp_path / "accuracy_at_animation_steps_h60_n3_newton7_T0.2.csv")
+    assert [r["method"] for r in rows] == ["bdf2"]
