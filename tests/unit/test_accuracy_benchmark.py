@@ -94,3 +94,9 @@ def test_newton_limit_option(acc, tmp_path, monkeypatch):
     assert acc.NEWTON_MAXITER == 7
     rows = _rows(tmp_path / "accuracy_at_animation_steps_h60_n3_newton7_T0.2.csv")
     assert [r["method"] for r in rows] == ["bdf2"]
+
+
+def test_sweep_never_measures_the_reference_against_itself(acc, tmp_path):
+    acc.run_size(3, 40, [10, 20, 40], [1e-2], h60=False, fixed_methods=("tr_bdf2",), adaptive_methods=())
+    sweep = _rows(tmp_path / "accuracy_at_animation_steps_sweep_n3.csv")
+    assert [float(r["mean_h_s"]) for r in sweep] == [pytest.approx(acc.T_END / 10)]
