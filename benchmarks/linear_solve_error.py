@@ -14,6 +14,7 @@ Usage::
     python benchmarks/linear_solve_error.py              # n = 64, 128
     python benchmarks/linear_solve_error.py --large      # also n = 256
     python benchmarks/linear_solve_error.py --quick      # n = 8 (tests)
+    python benchmarks/linear_solve_error.py --append --sizes 256 --modes spd   # add rows to the last run's
 """
 
 from __future__ import annotations
@@ -81,14 +82,17 @@ def _solve(name: str, A, b, rtol):
     return r1, r2
 
 
-def run(sizes, *, rtols=RTOLS, log=print) -> list[dict]:
-    """All (n, Jacobian mode, solver, rtol) combinations; returns result rows."""
+def run(sizes, *, rtols=RTOLS, modes=None, log=print) -> list[dict]:
+    """All (n, Jacobian mode, solver, rtol) combinations (``modes``: a subset of the Jacobian
+    modes, default all); returns result rows."""
     from springsim.linsolve import LINEAR_SOLVERS
 
     rows = []
     for n in sizes:
         systems = step_systems(n)
         for mode, system in systems.items():
+            if modes is not None and mode not in modes:
+                continue
             A, b = system()
             x_ref = _solve("direct", A, b, None)[0].x
             xn = float(np.linalg.norm(x_ref))
@@ -112,6 +116,23 @@ def run(sizes, *, rtols=RTOLS, log=print) -> list[dict]:
                     rows.append(row)
                     log(f"  n={n:4d} {mode:9s} {name:10s} rtol={row['rtol']!s:6s} {row['status'][:24]:24s} "
                         f"t={row.get('first_s', float('nan')):.3g}s err={row.get('rel_error', float('nan')):.2e}")
+    return rows
+
+
+NUMERIC = ("n", "dofs", "rtol", "first_s", "setup_s", "repeat_s", "iterations", "residual", "rel_error")
+
+
+def read_rows(path) -> list[dict]:
+    """Rows of an earlier run's CSV, numbers converted back (for ``--append``)."""
+    import csv
+
+    with open(path) as fh:
+        rows = list(csv.DictReader(fh))
+    for r in rows:
+        for k in NUMERIC:
+            if r.get(k, "") != "":
+                r[k] = int(float(r[k])) if k in ("n", "dofs", "iterations") else float(r[k])
+        r["symmetric"] = r.get("symmetric") == "True"
     return rows
 
 
@@ -145,12 +166,17 @@ def main(argv=None) -> int:
     p.add_argument("--large", action="store_true", help="add n = 256")
     p.add_argument("--out", type=Path, default=RESULTS_DIR)
     p.add_argument("--plot-dir", type=Path, default=None, help="also write the PNG here (e.g. docs/)")
+    p.add_argument("--modes", nargs="+", choices=("exact", "symmetric", "spd"), default=None,
+                   help="Jacobian modes to run (default all)")
+    p.add_argument("--append", action="store_true",
+                   help="keep the rows of OUT/linear_solve_error.csv and add this run's (table and plot show both)")
     a = p.parse_args(argv)
     sizes = a.sizes or ([8] if a.quick else [64, 128] + ([256] if a.large else []))
     a.out.mkdir(parents=True, exist_ok=True)
-    rows = []
+    old = a.out / "linear_solve_error.csv"
+    rows = read_rows(old) if a.append and old.exists() else []
     for n in sizes:  # write after every size, so a long run leaves its finished part
-        rows += run([n], rtols=[1e-2, 1e-8] if a.quick else RTOLS)
+        rows += run([n], rtols=[1e-2, 1e-8] if a.quick else RTOLS, modes=a.modes)
         write_csv(a.out / "linear_solve_error.csv", rows, COLUMNS)
     md = markdown_table(rows, COLUMNS)
     (a.out / "linear_solve_error.md").write_text("## Linear-solve error against speed\n\n" + md + "\n")

@@ -105,6 +105,11 @@ def test_linear_solve_error_quick(bench, tmp_path):
     assert all(float(r["rel_error"]) == 0.0 for r in direct)
     tight = [r for r in rows if r["rtol"] and float(r["rtol"]) <= 1e-8 and r["status"].startswith("ok")]
     assert tight and all(float(r["rel_error"]) < 1e-5 for r in tight)
+    # --append keeps those rows and adds a run restricted to one mode
+    assert mod.main(["--quick", "--out", str(tmp_path), "--append", "--modes", "spd"]) == 0
+    rows2, _ = _read(tmp_path / "linear_solve_error.csv")
+    assert rows2[:len(rows)] == rows
+    assert len(rows2) > len(rows) and {r["jacobian"] for r in rows2[len(rows):]} == {"spd"}
 
 
 def test_scaling_quick(bench, tmp_path):
