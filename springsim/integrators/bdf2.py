@@ -93,7 +93,7 @@ class IntegratorBDF2(ImplicitIntegrator):
     """
 
     name = "bdf2"
-    default_newton_maxiter = 20  # see ImplicitIntegrator (newton_maxiter)
+    default_newton_maxiter = 50  # see ImplicitIntegrator (newton_maxiter)
     order = 2
     #: Largest step ratio ``w`` the adaptive driver uses (variable-step BDF2 is zero-stable for w < 1 + sqrt(2)).
     max_step_ratio = 2.0

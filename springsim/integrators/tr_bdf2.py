@@ -57,7 +57,7 @@ class IntegratorTRBDF2(ImplicitIntegrator):
     """
 
     name = "tr_bdf2"
-    default_newton_maxiter = 20  # see ImplicitIntegrator (newton_maxiter)
+    default_newton_maxiter = 50  # see ImplicitIntegrator (newton_maxiter)
     order = 2
 
     def __init__(self, model, **options):

@@ -98,7 +98,7 @@ def test_stiff_cloth_newton_integrators_never_gain_energy(name):
     E = energy(m, tr.q, tr.qd)
     assert E[0] == 0.0
     assert E.max() <= 1e-6, f"{name}: energy rose to {E.max():.4g} J"
-    assert E[-1] < -1.0  # and it did fall: the cloth swings down
+    assert tr.q[-1][:, 2].mean() < -0.3  # and it did move: the cloth swings down (mean z -0.41 ... -0.50 m)
 
 
 def first_step_free_fall(model, h):
