@@ -84,6 +84,22 @@ class SystemMatrix:
         return self.bsr @ x
 
 
+def _scatter_add(S: sp.csr_matrix, X: np.ndarray, Y: np.ndarray) -> None:
+    """``Y += S @ X`` for a CSR ``S`` and C-contiguous float64 ``X``, ``Y`` (rows, 9).
+
+    Accumulates in place with scipy's compiled CSR kernel, so no (nnzb, 9) temporary is
+    allocated: at n = 256 that temporary is 61 MB per assembly, and fresh large
+    allocations cost page faults on every call (docs/solvers.md). Falls back to the
+    public product when the kernel is not available.
+    """
+    try:
+        from scipy.sparse import _sparsetools
+        _sparsetools.csr_matvecs(S.shape[0], S.shape[1], X.shape[1], S.indptr, S.indices, S.data,
+                                 X.ravel(), Y.ravel())
+    except (ImportError, AttributeError, TypeError, ValueError):  # private API moved or changed
+        Y += S @ X
+
+
 class SystemAssembler:
     """Assembles the implicit system of ``model`` for the force ``terms``.
 
@@ -174,10 +190,9 @@ class SystemAssembler:
                 blocks = jq if which == "q" else jqd
                 np.multiply(blocks.values, -(a if which == "q" else b), out=V[off:off + cnt])
         data = self.matrix.bsr.data
+        data[...] = self._mass
         if self.value_count:
-            np.add(self._mass, (self._scatter @ V.reshape(-1, 9)).reshape(-1, 3, 3), out=data)
-        else:
-            data[...] = self._mass
+            _scatter_add(self._scatter, V.reshape(-1, 9), data.reshape(-1, 9))
         m = self.matrix
         m.mode = mode
         m.symmetric = mode != "exact" or not self._nonsymmetric_exact
