@@ -84,19 +84,24 @@ class SystemMatrix:
         return self.bsr @ x
 
 
-def _scatter_add(S: sp.csr_matrix, X: np.ndarray, Y: np.ndarray) -> None:
-    """``Y += S @ X`` for a CSR ``S`` and C-contiguous float64 ``X``, ``Y`` (rows, 9).
+try:  # scipy's compiled CSR kernel ``Y += A @ X`` (private; absent -> the public product below)
+    from scipy.sparse._sparsetools import csr_matvecs as _csr_matvecs
+except ImportError:  # pragma: no cover - depends on the scipy version
+    _csr_matvecs = None
 
-    Accumulates in place with scipy's compiled CSR kernel, so no (nnzb, 9) temporary is
-    allocated: at n = 256 that temporary is 61 MB per assembly, and fresh large
-    allocations cost page faults on every call (docs/solvers.md). Falls back to the
-    public product when the kernel is not available.
+
+def _scatter_add(S: sp.csr_matrix, X: np.ndarray, Y: np.ndarray) -> None:
+    """``Y += S @ X`` for a CSR ``S`` and float64 ``X``, ``Y`` (rows, 9).
+
+    Accumulates in place with scipy's compiled CSR kernel when ``Y`` is C-contiguous, so no
+    (nnzb, 9) temporary is allocated: at n = 256 that temporary is 61 MB per assembly, and
+    fresh large allocations cost page faults on every call (docs/solvers.md). Otherwise
+    (or without the kernel) the public product.
     """
-    try:
-        from scipy.sparse import _sparsetools
-        _sparsetools.csr_matvecs(S.shape[0], S.shape[1], X.shape[1], S.indptr, S.indices, S.data,
-                                 X.ravel(), Y.ravel())
-    except (ImportError, AttributeError, TypeError, ValueError):  # private API moved or changed
+    if _csr_matvecs is not None and Y.flags.c_contiguous:
+        _csr_matvecs(S.shape[0], S.shape[1], X.shape[1], S.indptr, S.indices, S.data,
+                     np.ascontiguousarray(X).ravel(), Y.ravel())
+    else:
         Y += S @ X
 
 

@@ -220,3 +220,21 @@ def test_mass_only_system():
     model = random_scene(rng)
     A = _assembler(model).assemble(*_state(model, rng), 0.0, 0.0).toarray()
     np.testing.assert_array_equal(A, np.diag(np.repeat(model.particle_mass[~model.particle_fixed], 3)))
+
+
+def test_scatter_add_in_place_and_fallback():
+    """``_scatter_add`` adds S @ X into Y: in place for a contiguous Y, by the public product otherwise."""
+    import scipy.sparse as sp
+
+    from springsim.assembly.assemble import _scatter_add
+
+    rng = np.random.default_rng(0)
+    S = sp.random(7, 11, density=0.4, format="csr", random_state=1)
+    X = rng.standard_normal((11, 9))
+    Y0 = rng.standard_normal((7, 9))
+    Y = Y0.copy()
+    _scatter_add(S, X, Y)
+    np.testing.assert_allclose(Y, Y0 + S @ X, rtol=1e-14, atol=1e-14)
+    Z = np.zeros((9, 7)).T  # not C-contiguous: the kernel would write into a copy
+    _scatter_add(S, X, Z)
+    np.testing.assert_allclose(Z, S @ X, rtol=1e-14, atol=1e-14)
