@@ -69,6 +69,8 @@ METHODS = ("implicit_euler", "bdf2", "tr_bdf2")
 NEWTON_MAXITER = NEWTON_DEFAULT = 20
 #: linear solver of every run (set from the command line): name, rtol of method runs, rtol of the reference
 SOLVER = {"name": "direct", "rtol": 1e-6, "ref_name": "direct", "ref_rtol": 1e-10}
+#: settings of every reference-quality run (reference, its twin, validation, sensitivity)
+REF_KW = dict(ref=True, newton_tol=1e-8, newton_maxiter=20)
 
 
 class Trapezoidal(ImplicitIntegrator):
@@ -161,7 +163,7 @@ def validate_reference(n, ref_steps):
     t_radau = time.process_time() - t0
     rows = []
     for steps in (ref_steps // 2, ref_steps):
-        q, _, cpu, _ = fixed_run(model, "tr_bdf2", steps, ref=True, newton_tol=1e-8, newton_maxiter=20)
+        q, _, cpu, _ = fixed_run(model, "tr_bdf2", steps, **REF_KW)
         rows.append([n, steps, T_END / steps, rms(q, radau.q[-1]), cpu, t_radau])
     header = ["n", "steps", "h_s", "rms_vs_radau_m", "cpu_s", "radau_cpu_s"]
     table(f"Reference validation: fine TR-BDF2 vs Radau (rtol 1e-10), n = {n}", header, rows)
@@ -208,15 +210,14 @@ def reference(model, n, ref_steps, recompute=False):
     if hit is not None:
         print(f"reference loaded from {path.name} (computed with solver {hit[3]['solver']})", flush=True)
         return hit
-    kw = dict(ref=True, newton_tol=1e-8, newton_maxiter=20)
-    q_ref, v_ref, cpu_ref, tr = fixed_run(model, "tr_bdf2", ref_steps, **kw)
+    q_ref, v_ref, cpu_ref, tr = fixed_run(model, "tr_bdf2", ref_steps, **REF_KW)
     fails = sum(not s.newton_converged for s in tr.stats)
     twin_path, twin = cached(ref_steps // 2)
     if twin is not None:
         q_twin, cpu_twin = twin[0], twin[3]["cpu_ref"]
         print(f"twin loaded from {twin_path.name}", flush=True)
     else:
-        q_twin, _, cpu_twin, tr2 = fixed_run(model, "tr_bdf2", ref_steps // 2, **kw)
+        q_twin, _, cpu_twin, tr2 = fixed_run(model, "tr_bdf2", ref_steps // 2, **REF_KW)
         fails += sum(not s.newton_converged for s in tr2.stats)
     if fails:
         print(f"WARNING: {fails} reference steps missed the Newton tolerance", flush=True)
@@ -327,9 +328,9 @@ def sensitivity(n, steps, delta=1e-9, method="tr_bdf2", frames=10):
     perturbed = state.copy()
     perturbed.particle_q += dq
     every = max(steps // frames, 1)
-    kw = dict(ref=True, newton_tol=1e-8, newton_maxiter=20)
-    a = simulate(model, integrator(method, model, **kw), T_END / steps, steps, frame_every=every)
-    b = simulate(model, integrator(method, model, **kw), T_END / steps, steps, state=perturbed, frame_every=every)
+    a = simulate(model, integrator(method, model, **REF_KW), T_END / steps, steps, frame_every=every)
+    b = simulate(model, integrator(method, model, **REF_KW), T_END / steps, steps, state=perturbed,
+                 frame_every=every)
     rows = [[n, method, T_END / steps, float(t), rms(qa, qb)] for t, qa, qb in zip(a.t, a.q, b.q)]
     header = ["n", "method", "h_s", "t_s", "rms_diff_m"]
     table(f"n = {n}: growth of a {delta:g} m perturbation of the start ({method}, h = {T_END / steps * 1e3:.3g} ms)",
