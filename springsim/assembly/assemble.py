@@ -160,6 +160,7 @@ class SystemAssembler:
         self._mass = np.zeros((self.pattern.nnzb, 3, 3))
         self._mass[self.pattern.diagonal_positions] = model.particle_mass[self.free][:, None, None] * np.eye(3)
         self._values = np.empty((self.value_count, 3, 3))
+        self._work = {id(term): {} for term in self.terms}  # per-term temporaries, kept between assemblies
         damped = any(getattr(t, "damped", np.zeros(0)).size for t in self.terms)
         self._nonsymmetric_exact = damped
         self.matrix = SystemMatrix(self.pattern.empty_bsr(), self.pattern)
@@ -188,7 +189,7 @@ class SystemAssembler:
         for term in self.terms:
             jq, jqd = (None, None)
             if term.layout_q is not None or term.layout_qd is not None:
-                jq, jqd = term.eval_jacobians(q, qd, mode)
+                jq, jqd = term.eval_jacobians(q, qd, mode, work=self._work[id(term)])
             for src_term, which, off, cnt in self._sources:
                 if src_term is not term:
                     continue

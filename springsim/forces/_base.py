@@ -131,10 +131,15 @@ class ForceTerm(ABC):
     def eval_force(self, q: np.ndarray, qd: np.ndarray, f_out: np.ndarray) -> None:
         """Accumulate this term's forces [N] into ``f_out`` (N, 3)."""
 
-    def eval_jacobians(self, q: np.ndarray, qd: np.ndarray, mode: str = "exact") -> tuple[Blocks | None, Blocks | None]:
+    def eval_jacobians(self, q: np.ndarray, qd: np.ndarray, mode: str = "exact", *,
+                       work: dict | None = None) -> tuple[Blocks | None, Blocks | None]:
         """``(dF/dq, dF/dqd)`` as :class:`Blocks` (or None where independent).
 
-        ``mode`` is one of :data:`JACOBIAN_MODES`.
+        ``mode`` is one of :data:`JACOBIAN_MODES`. ``work``: a dict owned by the caller in
+        which the term may keep its large temporaries between calls (:func:`scratch`); the
+        returned blocks may then live in it, valid until the next call with the same dict.
+        The assembler passes one per term, so repeated assemblies allocate nothing large
+        (fresh multi-MB arrays cost page faults on every call: docs/solvers.md).
         """
         return None, None
 
@@ -148,23 +153,38 @@ class ForceTerm(ABC):
         return 0
 
 
-def pair_geometry(q: np.ndarray, pairs: np.ndarray, eps: float):
+def scratch(work: dict | None, name: str, shape: tuple) -> np.ndarray:
+    """An uninitialised float64 array of ``shape``: ``work[name]`` when it has that shape
+    (kept from an earlier call), else a new one, stored in ``work`` when given."""
+    if work is None:
+        return np.empty(shape)
+    a = work.get(name)
+    if a is None or a.shape != shape:
+        a = work[name] = np.empty(shape)
+    return a
+
+
+def pair_geometry(q: np.ndarray, pairs: np.ndarray, eps: float, work: dict | None = None):
     """Vectorised pair geometry.
 
     Returns ``d = q_i - q_j`` (P, 3), ``l = |d|`` (P,), ``n = d / l`` (P, 3) and a
-    mask ``near`` of pairs closer than ``eps`` (where ``n`` is set to zero).
+    mask ``near`` of pairs closer than ``eps`` (where ``n`` is set to zero). With ``work``
+    (see :meth:`ForceTerm.eval_jacobians`) ``d``, ``l`` and ``n`` live in it.
     """
-    d = q[pairs[:, 0]] - q[pairs[:, 1]]
-    l = np.sqrt(np.einsum("ij,ij->i", d, d))
+    P = pairs.shape[0]
+    d = scratch(work, "pair_d", (P, 3))
+    np.take(q, pairs[:, 0], axis=0, out=d)
+    d -= q[pairs[:, 1]]
+    l = np.sqrt(np.einsum("ij,ij->i", d, d), out=scratch(work, "pair_l", (P,)))
     near = l < eps
-    n = d / np.where(near, 1.0, l)[:, None]
+    n = np.divide(d, np.where(near, 1.0, l)[:, None], out=scratch(work, "pair_n", (P, 3)))
     n[near] = 0.0
     return d, l, n, near
 
 
-def outer(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row-wise outer products, (P, 3) x (P, 3) -> (P, 3, 3)."""
-    return a[:, :, None] * b[:, None, :]
+def outer(a: np.ndarray, b: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """Row-wise outer products, (P, 3) x (P, 3) -> (P, 3, 3) (into ``out`` when given)."""
+    return np.multiply(a[:, :, None], b[:, None, :], out=out)
 
 
 def scatter_pair_forces(f_out: np.ndarray, pairs: np.ndarray, f: np.ndarray) -> None:

@@ -37,5 +37,5 @@ class ForceDrag(ForceTerm):
     def eval_force(self, q, qd, f_out):
         f_out[self.index] -= self.beta[:, None] * qd[self.index]
 
-    def eval_jacobians(self, q, qd, mode="exact"):
+    def eval_jacobians(self, q, qd, mode="exact", *, work=None):
         return None, Blocks(self.layout_qd, self._blocks)

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._base import BlockLayout, Blocks, ForceTerm, active_pairs, outer, pair_geometry, scatter_pair_forces
+from ._base import BlockLayout, Blocks, ForceTerm, active_pairs, outer, pair_geometry, scatter_pair_forces, scratch
 
 __all__ = ["ForceGravitational"]
 
@@ -63,11 +63,14 @@ class ForceGravitational(ForceTerm):
         ls = np.maximum(l, self.eps)
         scatter_pair_forces(f_out, self.pairs, -(self.c / ls**3)[:, None] * d)
 
-    def eval_jacobians(self, q, qd, mode="exact"):
-        d, l, n, near = pair_geometry(q, self.pairs, self.eps)
+    def eval_jacobians(self, q, qd, mode="exact", *, work=None):
+        P = self.pairs.shape[0]
+        d, l, n, near = pair_geometry(q, self.pairs, self.eps, work)
         s = (self.c / np.maximum(l, self.eps) ** 3)[:, None, None]
-        nn = outer(n, n)
-        K = -s * (_I3 - nn) if mode == "spd" else -s * (_I3 - 3.0 * nn)
+        # K = -s (I - w nn^T), w = 1 (spd) or 3 (exact): s w nn^T, then -s on the diagonal
+        K = outer(n, n, out=scratch(work, "K", (P, 3, 3)))
+        K *= s * (1.0 if mode == "spd" else 3.0)
+        K.reshape(-1, 9)[:, ::4] -= s.reshape(-1, 1)
         return Blocks(self.layout_q, K), None
 
     def potential_energy(self, q):

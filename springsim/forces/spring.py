@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._base import BlockLayout, Blocks, ForceTerm, active_pairs, outer, pair_geometry, scatter_pair_forces
+from ._base import BlockLayout, Blocks, ForceTerm, active_pairs, outer, pair_geometry, scatter_pair_forces, scratch
 
 __all__ = ["ForceSpring"]
 
@@ -84,15 +84,16 @@ class ForceSpring(ForceTerm):
             f[self.damped] -= (self.kd[self.damped] * np.einsum("ij,ij->i", nd, v))[:, None] * nd
         scatter_pair_forces(f_out, self.pairs, f)
 
-    def eval_jacobians(self, q, qd, mode="exact"):
-        d, l, n, near = pair_geometry(q, self.pairs, self.eps)
-        nn = outer(n, n)
+    def eval_jacobians(self, q, qd, mode="exact", *, work=None):
+        P = self.pairs.shape[0]
+        d, l, n, near = pair_geometry(q, self.pairs, self.eps, work)
+        nn = outer(n, n, out=scratch(work, "nn", (P, 3, 3)))
         coef = self._elastic_coef(l, near)
         if mode == "spd":
             coef = np.maximum(coef, 0.0)
         # elastic: -k [ coef (I - nn^T) + nn^T ] = -k (1 - coef) nn^T - k coef I, written as one
         # scaled copy of nn^T plus a diagonal update (two passes over (P, 3, 3) instead of five)
-        K = nn * (self.ke * (coef - 1.0))[:, None, None]
+        K = np.multiply(nn, (self.ke * (coef - 1.0))[:, None, None], out=scratch(work, "K", (P, 3, 3)))
         diag = K.reshape(-1, 9)[:, ::4]
         diag -= (self.ke * coef)[:, None]
         dfdqd = None
