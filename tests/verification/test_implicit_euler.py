@@ -113,3 +113,25 @@ def test_nonconvergence_is_reported():
                             on_nonconvergence="raise")
     with pytest.raises(SolverError, match="did not converge"):
         integ.step(s0, s1, 0.05)
+
+
+@pytest.mark.parametrize("name", ["implicit_euler", "bdf2", "tr_bdf2"])
+def test_projected_jacobian_escalates_to_exact_when_newton_stalls(name):
+    """Newton with the ``spd`` Jacobian (linear convergence on the damped chain) that reaches
+    its limit continues with the exact Jacobian and converges; without escalation it stalls.
+    The exact mode never escalates."""
+    model = damped_chain()
+    s0 = model.state()
+    kw = dict(solver="direct", newton_tol=1e-11, newton_maxiter=4, on_nonconvergence="ignore")
+    results = {}
+    for mode, escalate in [("spd", True), ("spd", False), ("exact", True)]:
+        if mode == "exact":
+            kw["newton_maxiter"] = 8
+        integ = make_integrator(name, model, jacobian=mode, escalate_jacobian=escalate, **kw)
+        st = integ.step(s0, model.state(), 0.05)
+        results[mode, escalate] = st
+    on, off, exact = results["spd", True], results["spd", False], results["exact", True]
+    assert not off.newton_converged and "jacobian_escalations" not in off.extra
+    assert on.newton_converged and on.extra["jacobian_escalations"] >= 1
+    assert on.residual_norm < 1e-3 * off.residual_norm
+    assert exact.newton_converged and "jacobian_escalations" not in exact.extra
