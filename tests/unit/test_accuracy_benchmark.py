@@ -100,3 +100,23 @@ def test_sweep_never_measures_the_reference_against_itself(acc, tmp_path):
     acc.run_size(3, 40, [10, 20, 40], [1e-2], h60=False, fixed_methods=("tr_bdf2",), adaptive_methods=())
     sweep = _rows(tmp_path / "accuracy_at_animation_steps_sweep_n3.csv")
     assert [float(r["mean_h_s"]) for r in sweep] == [pytest.approx(acc.T_END / 10)]
+
+
+def test_newton_jacobian_modes_runs_each_configuration(acc, tmp_path, capsys):
+    """``benchmarks/newton_jacobian_modes.py`` at a tiny size: one row per method and configuration,
+    the default Jacobian resolved, escalation switchable, bad configurations rejected."""
+    sys.path.insert(0, str(BENCH))
+    try:
+        mod = importlib.import_module("newton_jacobian_modes")
+    finally:
+        sys.path.remove(str(BENCH))
+    mod.acc = acc  # the fixture's module (results in tmp_path)
+    mod.main(["--n", "3", "--steps", "8", "--ref-steps", "40", "--ref-solver", "direct", "--methods", "tr_bdf2",
+              "--configs", "direct:default", "direct:spd:noescalate", "cg:default"])
+    rows = _rows(tmp_path / "accuracy_at_animation_steps_newton_jacobian_modes_n3.csv")
+    assert [(r["solver"], r["jacobian"], r["escalate"]) for r in rows] == [
+        ("direct", "exact", "True"), ("direct", "spd", "False"), ("cg", "spd", "True")]
+    assert all(float(r["rms_error_m"]) < 0.05 and r["steps_at_limit"] == "0" for r in rows)
+    with pytest.raises(SystemExit):
+        mod.main(["--n", "3", "--steps", "8", "--ref-steps", "40", "--configs", "direct"])
+    assert "expected solver:jacobian" in capsys.readouterr().err
