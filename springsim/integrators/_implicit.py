@@ -74,8 +74,8 @@ class ImplicitIntegrator(Integrator):
         the true Jacobian (compressed springs), which is where it misses its limit: TR-BDF2
         at h = 1/60 s on the 64 x 64 issue-7 cloth with ``auto`` (``spd``, AMG-CG) missed it on
         3 of 70 steps, retook them as implicit Euler and ended 0.075 m off against 0.013 m
-        with the exact Jacobian (docs/accuracy.md). Only converged Newton iterations
-        escalate, so linearized implicit Euler is unaffected.
+        with the exact Jacobian (docs/accuracy.md). Only stages that run Newton to
+        convergence escalate, so linearized implicit Euler (one plain iteration) is unaffected.
     """
 
     implicit = True
