@@ -23,14 +23,14 @@ import accuracy_at_animation_steps as acc
 from springsim.driver import simulate
 from springsim.integrators import make_integrator
 
-HEADER = ["n", "method", "solver", "jacobian", "escalate", "steps", "cpu_per_step_s", "newton_per_step",
+HEADER = ["n", "method", "solver", "jacobian", "escalate", "escalate_after", "steps", "cpu_per_step_s", "newton_per_step",
           "krylov_per_step", "steps_at_limit", "fallbacks", "escalations", "rms_error_m"]
 
 
-def run(model, method, solver, jacobian, escalate, steps, q_ref, newton_maxiter=50, rtol=1e-6):
+def run(model, method, solver, jacobian, escalate, steps, q_ref, newton_maxiter=50, rtol=1e-6, escalate_after=None):
     """One fixed-step run over ``acc.T_END``; the table row (without ``n``)."""
     kw = dict(solver=solver, solver_options={"rtol": rtol}, on_nonconvergence="ignore",
-              newton_maxiter=newton_maxiter, escalate_jacobian=escalate)
+              newton_maxiter=newton_maxiter, escalate_jacobian=escalate, escalate_after=escalate_after)
     if jacobian != "default":
         kw["jacobian"] = jacobian
     integ = make_integrator(method, model, **kw)
@@ -40,7 +40,7 @@ def run(model, method, solver, jacobian, escalate, steps, q_ref, newton_maxiter=
         tr = simulate(model, integ, acc.T_END / steps, steps, record=False)
         cpu = time.process_time() - t0
     st = tr.stats
-    return [method, solver, integ.jacobian, escalate, steps, cpu / steps,
+    return [method, solver, integ.jacobian, escalate, escalate_after or newton_maxiter, steps, cpu / steps,
             sum(s.newton_iterations for s in st) / steps, sum(s.linear_iterations for s in st) / steps,
             sum(not s.newton_converged for s in st), sum(len(s.fallbacks) for s in st),
             sum(s.extra.get("jacobian_escalations", 0) for s in st), acc.rms(tr.q[-1], q_ref)]
@@ -56,6 +56,8 @@ def main(argv=None):
     p.add_argument("--configs", nargs="+", default=["auto:default", "direct:exact", "amg-cg:exact"],
                    help="solver:jacobian[:noescalate]")
     p.add_argument("--newton-maxiter", type=int, default=50)
+    p.add_argument("--escalate-after", type=int, nargs="+", default=[None],
+                   help="Newton iterations with the projected Jacobian before the exact one (default: the limit)")
     a = p.parse_args(argv)
     acc.SOLVER["ref_name"] = a.ref_solver
     model = acc.cloth(a.n)
@@ -66,10 +68,11 @@ def main(argv=None):
             parts = config.split(":")
             if len(parts) not in (2, 3) or (len(parts) == 3 and parts[2] != "noescalate"):
                 p.error(f"--configs: expected solver:jacobian[:noescalate], got {config!r}")
-            row = [a.n] + run(model, method, parts[0], parts[1], len(parts) == 2, a.steps, q_ref,
-                              newton_maxiter=a.newton_maxiter)
-            rows.append(row)
-            print("   ", row, flush=True)
+            for after in a.escalate_after:
+                row = [a.n] + run(model, method, parts[0], parts[1], len(parts) == 2, a.steps, q_ref,
+                                  newton_maxiter=a.newton_maxiter, escalate_after=after)
+                rows.append(row)
+                print("   ", row, flush=True)
     acc.table(f"n = {a.n}: Newton configurations, h = {acc.T_END / a.steps * 1e3:.3g} ms", HEADER, rows)
     acc.write_csv(f"newton_jacobian_modes_n{a.n}", HEADER, rows)
 

@@ -76,6 +76,8 @@ class ImplicitIntegrator(Integrator):
         3 of 70 steps, retook them as implicit Euler and ended 0.075 m off against 0.013 m
         with the exact Jacobian (docs/accuracy.md). Only stages that run Newton to
         convergence escalate, so linearized implicit Euler (one plain iteration) is unaffected.
+    escalate_after : int or None
+        Iterations with the projected Jacobian before escalating (default: the Newton limit).
     """
 
     implicit = True
@@ -85,7 +87,7 @@ class ImplicitIntegrator(Integrator):
     def __init__(self, model, *, solver="direct", jacobian: str | None = None, newton_tol: float = 1e-5,
                  newton_maxiter: int | None = None, on_nonconvergence: str = "warn", solver_options: dict | None = None,
                  line_search: bool = True, min_step: float = 1.0 / 64, escalate_jacobian: bool = True,
-                 terms=None):
+                 escalate_after: int | None = None, terms=None):
         super().__init__(model, terms=terms)
         self.solver = make_linear_solver(solver, **(solver_options or {}))
         if jacobian is None:
@@ -107,6 +109,9 @@ class ImplicitIntegrator(Integrator):
         self.line_search = bool(line_search)
         self.min_step = float(min_step)
         self.escalate_jacobian = bool(escalate_jacobian)
+        if escalate_after is not None and (int(escalate_after) != escalate_after or escalate_after < 1):
+            raise SceneError("solver.escalate_after", f"must be an integer >= 1, got {escalate_after}")
+        self.escalate_after = None if escalate_after is None else int(escalate_after)
         self.assembler = SystemAssembler(model, self.terms)
         self._mass = model.particle_mass[:, None]
         self._warm: np.ndarray | None = None
@@ -139,9 +144,10 @@ class ImplicitIntegrator(Integrator):
         maxiter = self.newton_maxiter if maxiter is None else maxiter
         v = np.array(v0, dtype=np.float64)
         v[self.fixed] = 0.0
-        q, v, step, rnorm, converged = self._newton(q_hat, v_hat, c, v, stats, maxiter, converge, self.jacobian)
-        if (converge and not converged and self.escalate_jacobian and self.jacobian != "exact"
-                and np.isfinite(rnorm) and np.all(np.isfinite(v))):
+        escalate = converge and self.escalate_jacobian and self.jacobian != "exact"
+        first = min(maxiter, self.escalate_after) if escalate and self.escalate_after is not None else maxiter
+        q, v, step, rnorm, converged = self._newton(q_hat, v_hat, c, v, stats, first, converge, self.jacobian)
+        if escalate and not converged and np.isfinite(rnorm) and np.all(np.isfinite(v)):
             # the projected Jacobian slows Newton to linear convergence where it differs from the
             # exact one (compressed springs); finish the stage with the exact Jacobian
             stats.extra["jacobian_escalations"] = stats.extra.get("jacobian_escalations", 0) + 1

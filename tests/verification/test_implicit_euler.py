@@ -135,3 +135,19 @@ def test_projected_jacobian_escalates_to_exact_when_newton_stalls(name):
     assert on.newton_converged and on.extra["jacobian_escalations"] >= 1
     assert on.residual_norm < 1e-3 * off.residual_norm
     assert exact.newton_converged and "jacobian_escalations" not in exact.extra
+
+
+def test_escalate_after_switches_early_and_is_validated():
+    """``escalate_after=k``: k iterations with the projected Jacobian, then the exact one; fewer
+    iterations in total than escalating at the limit; bad values are a clear error."""
+    from springsim.errors import SceneError
+
+    model = damped_chain()
+    kw = dict(solver="direct", jacobian="spd", newton_tol=1e-11, newton_maxiter=30, on_nonconvergence="ignore")
+    late = make_integrator("implicit_euler", model, **kw).step(model.state(), model.state(), 0.05)
+    early = make_integrator("implicit_euler", model, escalate_after=2, **kw).step(model.state(), model.state(), 0.05)
+    assert early.newton_converged and early.extra["jacobian_escalations"] == 1
+    assert early.newton_iterations < late.newton_iterations
+    for bad in (0, 1.5):
+        with pytest.raises(SceneError, match="escalate_after"):
+            make_integrator("implicit_euler", model, escalate_after=bad, **kw)
