@@ -31,6 +31,12 @@ from ._base import Integrator, StepStats
 __all__ = ["ImplicitIntegrator", "NewtonConvergenceWarning"]
 
 
+def _check_count(field: str, value) -> None:
+    """A SceneError naming ``field`` unless ``value`` is an integer >= 1."""
+    if int(value) != value or value < 1:
+        raise SceneError(field, f"must be an integer >= 1, got {value}")
+
+
 class NewtonConvergenceWarning(RuntimeWarning):
     """Newton stopped at its iteration limit without meeting the tolerance."""
 
@@ -98,8 +104,7 @@ class ImplicitIntegrator(Integrator):
             raise SceneError("solver.newton_tol", f"must be > 0, got {newton_tol}")
         if newton_maxiter is None:
             newton_maxiter = self.default_newton_maxiter
-        if int(newton_maxiter) != newton_maxiter or newton_maxiter < 1:
-            raise SceneError("solver.newton_maxiter", f"must be an integer >= 1, got {newton_maxiter}")
+        _check_count("solver.newton_maxiter", newton_maxiter)
         if on_nonconvergence not in ("warn", "raise", "ignore"):
             raise ValueError(f"on_nonconvergence must be warn, raise or ignore, got {on_nonconvergence!r}")
         self.jacobian = jacobian
@@ -109,8 +114,8 @@ class ImplicitIntegrator(Integrator):
         self.line_search = bool(line_search)
         self.min_step = float(min_step)
         self.escalate_jacobian = bool(escalate_jacobian)
-        if escalate_after is not None and (int(escalate_after) != escalate_after or escalate_after < 1):
-            raise SceneError("solver.escalate_after", f"must be an integer >= 1, got {escalate_after}")
+        if escalate_after is not None:
+            _check_count("solver.escalate_after", escalate_after)
         self.escalate_after = None if escalate_after is None else int(escalate_after)
         self.assembler = SystemAssembler(model, self.terms)
         self._mass = model.particle_mass[:, None]
@@ -147,7 +152,7 @@ class ImplicitIntegrator(Integrator):
         escalate = converge and self.escalate_jacobian and self.jacobian != "exact"
         first = min(maxiter, self.escalate_after) if escalate and self.escalate_after is not None else maxiter
         q, v, step, rnorm, converged = self._newton(q_hat, v_hat, c, v, stats, first, converge, self.jacobian)
-        if escalate and not converged and np.isfinite(rnorm) and np.all(np.isfinite(v)):
+        if escalate and not converged and np.isfinite(rnorm):  # a non-finite v makes rnorm non-finite
             # the projected Jacobian slows Newton to linear convergence where it differs from the
             # exact one (compressed springs); finish the stage with the exact Jacobian
             stats.extra["jacobian_escalations"] = stats.extra.get("jacobian_escalations", 0) + 1
