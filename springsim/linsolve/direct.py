@@ -60,6 +60,8 @@ class LinearSolverDirect(LinearSolver):
         res = relative_residual(csc, x, b) if ok else float("inf")
         if ok and not res <= max(1e-8, self.rtol):
             ok, err = False, f"inaccurate factorisation (relative residual {res:.1e})"
-        info = {"nnz_LU": int(lu.L.nnz + lu.U.nnz)} if lu is not None else {}
+        # ``lu.nnz`` is nnz(L) + nnz(U) without building L and U as sparse matrices (``lu.L``/``lu.U``
+        # copy the factors: 3.8 ms of a 26 ms factorisation at n = 32)
+        info = {"nnz_LU": int(lu.nnz)} if lu is not None else {}
         return LinearSolveResult(x, ok, 0, res, self.name, setup_s=t1 - t0, solve_s=t2 - t1,
                                  fallback=err, info=info)

@@ -196,3 +196,13 @@ def test_auto_asks_for_spd_only_where_it_uses_cg():
     assert small.jacobian == "spd"
     assert make_integrator("implicit_euler", model, solver="amg-cg").jacobian == "spd"
     assert make_integrator("implicit_euler", model, solver="direct").jacobian == "exact"
+
+
+def test_direct_reports_the_fill_of_its_factors():
+    """``info["nnz_LU"]`` (read from SuperLU without copying the factors) is nnz(L) + nnz(U)."""
+    import scipy.sparse.linalg as spla
+
+    A, b, _ = _system("nonsymmetric")
+    res = make_linear_solver("direct").solve(A, b)
+    lu = spla.splu(A.tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
+    assert res.info["nnz_LU"] == lu.L.nnz + lu.U.nnz > A.bsr.nnz
