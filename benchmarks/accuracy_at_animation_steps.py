@@ -62,6 +62,7 @@ RESULTS = Path(__file__).resolve().parent / "results"
 T_DEFAULT = 1.17
 #: horizon [s] (``--t-end``)
 T_END = T_DEFAULT
+H_MAX = None  # step cap of the adaptive runs [s] (--h-max; None: the driver's default)
 H_ANIM = 1.0 / 60.0
 METHODS = ("implicit_euler", "bdf2", "tr_bdf2")
 #: Newton iteration limit of every run (the seed's 5 leaves 13-18 of 70 steps unconverged on the
@@ -120,7 +121,7 @@ def fixed_run(model, name, steps, ref=False, **kw):
 def adaptive_run(model, name, tol):
     t0 = time.process_time()
     tr = simulate_adaptive(model, name, T_END, time_rtol=tol, time_atol=tol, on_nonconvergence="ignore",
-                           newton_maxiter=NEWTON_MAXITER, solver=SOLVER["name"],
+                           h_max=H_MAX, newton_maxiter=NEWTON_MAXITER, solver=SOLVER["name"],
                            solver_options={"rtol": SOLVER["rtol"]})
     return tr.q[-1], tr.qd[-1], time.process_time() - t0, tr
 
@@ -150,7 +151,8 @@ def horizon_tag():
 
 def write_csv(name, header, rows):
     RESULTS.mkdir(parents=True, exist_ok=True)
-    with open(RESULTS / f"accuracy_at_animation_steps_{name}{horizon_tag()}.csv", "w", newline="") as fh:
+    tag = horizon_tag() + ("" if H_MAX is None else f"_hmax{H_MAX:g}")
+    with open(RESULTS / f"accuracy_at_animation_steps_{name}{tag}.csv", "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(header)
         w.writerows(rows)
@@ -379,12 +381,17 @@ def main(argv=None):
     p.add_argument("--sensitivity", type=int, nargs=2, metavar=("N", "STEPS"),
                    help="only the perturbation-growth run of the N x N cloth with STEPS steps over T")
     p.add_argument("--delta", type=float, default=1e-9, help="perturbation of --sensitivity [m] (default 1e-9)")
+    p.add_argument("--h-max", type=float, help="step cap of the adaptive runs [s] (default: T / 10; tags the CSV "
+                                               "files _hmax<h>)")
     a = p.parse_args(argv)
-    global T_END, NEWTON_MAXITER
+    global T_END, NEWTON_MAXITER, H_MAX
     NEWTON_MAXITER = a.newton_maxiter
     if not (a.t_end > 0 and np.isfinite(a.t_end)):
         p.error(f"--t-end: must be a finite number > 0, got {a.t_end}")
     T_END = a.t_end
+    if a.h_max is not None and not (0 < a.h_max < np.inf):
+        p.error(f"--h-max: must be a finite number > 0, got {a.h_max}")
+    H_MAX = a.h_max
     SOLVER.update(name=a.solver, rtol=a.linear_rtol, ref_name=a.ref_solver or a.solver)
     warnings.simplefilter("ignore")
     print(f"accuracy at animation steps: T = {T_END} s, h_anim = 1/60 s, CPU = time.process_time()")
