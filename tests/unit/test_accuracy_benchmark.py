@@ -120,3 +120,18 @@ def test_newton_jacobian_modes_runs_each_configuration(acc, tmp_path, capsys):
     with pytest.raises(SystemExit):
         mod.main(["--n", "3", "--steps", "8", "--ref-steps", "40", "--configs", "direct"])
     assert "expected solver:jacobian" in capsys.readouterr().err
+
+
+def test_h_max_caps_the_adaptive_steps_and_tags_the_output(acc, tmp_path, monkeypatch):
+    monkeypatch.setattr(acc, "H_MAX", None)  # restored after the test
+    acc.main(["--sizes", "3", "--ref-steps", "40", "--validate-n", "0", "--skip-spring", "--only-adaptive", "tr_bdf2",
+              "--tols", "1e-2", "--h-max", "0.05"])
+    rows = _rows(tmp_path / "accuracy_at_animation_steps_adaptive_tr_bdf2_n3_hmax0.05.csv")
+    assert len(rows) == 1 and float(rows[0]["mean_h_s"]) <= 0.05 + 1e-12
+    capped = acc.adaptive_run(acc.cloth(3), "tr_bdf2", 1e-2)[3]
+    assert capped.adaptive_stats["h_max"] <= 0.05 + 1e-12
+    monkeypatch.setattr(acc, "H_MAX", None)
+    free = acc.adaptive_run(acc.cloth(3), "tr_bdf2", 1e-2)[3]
+    assert free.adaptive_stats["h_max"] > 0.05  # without the cap the controller takes longer steps here
+    with pytest.raises(SystemExit):
+        acc.main(["--h-max", "0", "--sensitivity", "3", "10"])
