@@ -116,6 +116,9 @@ def _run_add_arguments(p: argparse.ArgumentParser) -> None:
                         "the first step and the frame spacing (overrides solver.time_rtol)")
     p.add_argument("--time-atol", type=_positive_float, metavar="A",
                    help="adaptive time stepping: absolute local error tolerance [m, m/s] (overrides solver.time_atol)")
+    p.add_argument("--max-step", type=_positive_float, metavar="H",
+                   help="adaptive time stepping: largest step [s] (overrides solver.max_step; default a tenth "
+                        "of the run)")
     p.add_argument("--out", metavar="FILE.npz", help="write frames t (F,), q (F,N,3), qd (F,N,3) to an .npz")
     p.add_argument("--frame-every", type=_positive_int, default=1, metavar="K",
                    help="record every K-th step in --out (first and last always)")
@@ -177,7 +180,7 @@ def _run(args: argparse.Namespace) -> int:
     cfg = scene.config.with_overrides(dt=args.dt, integrator=args.integrator, linear_solver=args.solver,
                                       jacobian=args.jacobian, linear_rtol=args.rtol, newton_tol=args.newton_tol,
                                       newton_maxiter=args.newton_maxiter, time_rtol=args.time_rtol,
-                                      time_atol=args.time_atol)
+                                      time_atol=args.time_atol, max_step=args.max_step)
     if args.steps is not None:
         steps = args.steps
     elif args.duration is not None:
@@ -199,7 +202,8 @@ def _run(args: argparse.Namespace) -> int:
                 rtol = cfg.time_rtol if cfg.time_rtol is not None else cfg.time_atol
                 atol = cfg.time_atol if cfg.time_atol is not None else cfg.time_rtol
                 traj = simulate_adaptive(scene.model, integrator, steps * cfg.dt, time_rtol=rtol, time_atol=atol,
-                                         frame_dt=cfg.dt * args.frame_every if record else None, h0=cfg.dt,
+                                         frame_dt=cfg.dt * args.frame_every if record else None,
+                                         h0=cfg.dt, h_max=cfg.max_step,  # the driver clips h0 to h_max
                                          progress=None if progress is None else
                                          (lambda t, t_end: progress(int(round(t / cfg.dt)), steps)))
             else:

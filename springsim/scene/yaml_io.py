@@ -50,7 +50,7 @@ MAX_GENERATED_PARTICLES = 50_000_000
 _TOP_KEYS = ("solver", "particles", "springs", "gravitational", "plot", "cloth", "benchmark_cloth",
              "name", "description")
 _SOLVER_KEYS = ("type", "timestep", "gravity", "up_axis", "steps", "duration", "linear_solver", "jacobian",
-                "linear_rtol", "newton_tol", "newton_maxiter", "time_rtol", "time_atol")
+                "linear_rtol", "newton_tol", "newton_maxiter", "time_rtol", "time_atol", "max_step")
 _PARTICLE_KEYS = ("pos", "vel", "mass", "fixed", "radius", "drag")
 _SPRING_KEYS = ("particle_ids", "stiffness", "damping", "rest_length")
 _GRAV_KEYS = ("particle_ids", "G")
@@ -104,6 +104,9 @@ class SolverConfig:
         Newton iteration limit, >= 1.
     time_rtol, time_atol : float or None
         Local error tolerances of adaptive time stepping, > 0.
+    max_step : float or None
+        Largest step of adaptive time stepping [s], > 0 (None: the driver's default, a tenth of
+        the run); unused by fixed steps.
     """
 
     integrator: str
@@ -116,6 +119,7 @@ class SolverConfig:
     newton_maxiter: int | None = None
     time_rtol: float | None = None
     time_atol: float | None = None
+    max_step: float | None = None
 
     def validate(self) -> "SolverConfig":
         """Check every field (names against the registries as they are now); return self.
@@ -135,7 +139,7 @@ class SolverConfig:
         if self.jacobian is not None:
             _choice("solver.jacobian", self.jacobian, forces_base.JACOBIAN_MODES, "jacobian mode")
         _positive("solver.timestep", self.dt)
-        for key in ("linear_rtol", "newton_tol", "time_rtol", "time_atol"):
+        for key in ("linear_rtol", "newton_tol", "time_rtol", "time_atol", "max_step"):
             v = getattr(self, key)
             if v is not None:
                 _positive(f"solver.{key}", v)
@@ -307,13 +311,14 @@ def _parse_solver(doc: dict, default_dt: float | None) -> tuple[SolverConfig, fl
     up = s.get("up_axis", "z")
     if up not in AXES and not (_is_int(up) and 0 <= up <= 2):
         raise SceneError("solver.up_axis", f"must be one of {', '.join(AXES)} (or 0, 1, 2), got {_show(up)}")
-    for key in ("linear_rtol", "newton_tol", "time_rtol", "time_atol"):
+    for key in ("linear_rtol", "newton_tol", "time_rtol", "time_atol", "max_step"):
         if key in s:
             _positive(f"solver.{key}", s[key])
     cfg = SolverConfig(integrator=s["type"], dt=float(dt), steps=steps, linear_solver=s.get("linear_solver"),
                        jacobian=s.get("jacobian"), linear_rtol=_opt_float(s, "linear_rtol"),
                        newton_tol=_opt_float(s, "newton_tol"), newton_maxiter=s.get("newton_maxiter"),
-                       time_rtol=_opt_float(s, "time_rtol"), time_atol=_opt_float(s, "time_atol"))
+                       time_rtol=_opt_float(s, "time_rtol"), time_atol=_opt_float(s, "time_atol"),
+                       max_step=_opt_float(s, "max_step"))
     return cfg.validate(), gravity, up
 
 

@@ -97,6 +97,10 @@ def test_solver_options_reach_integrator_options():
     assert s.config.integrator_options() == {"solver": "direct", "jacobian": "spd", "newton_tol": 1e-7,
                                              "newton_maxiter": 9, "solver_options": {"rtol": 1e-8}}
     assert (s.config.time_rtol, s.config.time_atol) == (1e-3, 1e-6)
+    assert s.config.max_step is None
+    capped = load_scene("solver: {type: tr_bdf2, timestep: 0.01, time_rtol: 1.0e-3, max_step: 0.004}\n"
+                        "particles: [{pos: [0,0,0], mass: 1}]")
+    assert capped.config.max_step == 0.004
 
 
 def test_cloth_generator_matches_gallery_topology():
@@ -194,6 +198,8 @@ BAD = [
      "solver.newton_maxiter: must be an integer >= 1"),
     (HEAD.replace("}", ", newton_tol: 0}") + "particles: [{pos: [0,0,0], mass: 1}]", "solver.newton_tol"),
     (HEAD.replace("}", ", time_rtol: -1}") + "particles: [{pos: [0,0,0], mass: 1}]", "solver.time_rtol"),
+    (HEAD.replace("}", ", max_step: -0.01}") + "particles: [{pos: [0,0,0], mass: 1}]",
+     "solver.max_step: must be finite and > 0, got -0.01"),
     (HEAD.replace("}", ", steps: 3, duration: 1}") + "particles: [{pos: [0,0,0], mass: 1}]",
      "steps or duration, not both"),
     (HEAD, "no particles"),
