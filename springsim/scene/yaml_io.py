@@ -51,6 +51,8 @@ _TOP_KEYS = ("solver", "particles", "springs", "gravitational", "plot", "cloth",
              "name", "description")
 _SOLVER_KEYS = ("type", "timestep", "gravity", "up_axis", "steps", "duration", "linear_solver", "jacobian",
                 "linear_rtol", "newton_tol", "newton_maxiter", "time_rtol", "time_atol", "max_step")
+#: solver keys that must be finite numbers > 0 when given
+_POSITIVE_SOLVER_KEYS = ("linear_rtol", "newton_tol", "time_rtol", "time_atol", "max_step")
 _PARTICLE_KEYS = ("pos", "vel", "mass", "fixed", "radius", "drag")
 _SPRING_KEYS = ("particle_ids", "stiffness", "damping", "rest_length")
 _GRAV_KEYS = ("particle_ids", "G")
@@ -139,7 +141,7 @@ class SolverConfig:
         if self.jacobian is not None:
             _choice("solver.jacobian", self.jacobian, forces_base.JACOBIAN_MODES, "jacobian mode")
         _positive("solver.timestep", self.dt)
-        for key in ("linear_rtol", "newton_tol", "time_rtol", "time_atol", "max_step"):
+        for key in _POSITIVE_SOLVER_KEYS:
             v = getattr(self, key)
             if v is not None:
                 _positive(f"solver.{key}", v)
@@ -311,7 +313,7 @@ def _parse_solver(doc: dict, default_dt: float | None) -> tuple[SolverConfig, fl
     up = s.get("up_axis", "z")
     if up not in AXES and not (_is_int(up) and 0 <= up <= 2):
         raise SceneError("solver.up_axis", f"must be one of {', '.join(AXES)} (or 0, 1, 2), got {_show(up)}")
-    for key in ("linear_rtol", "newton_tol", "time_rtol", "time_atol", "max_step"):
+    for key in _POSITIVE_SOLVER_KEYS:
         if key in s:
             _positive(f"solver.{key}", s[key])
     cfg = SolverConfig(integrator=s["type"], dt=float(dt), steps=steps, linear_solver=s.get("linear_solver"),
