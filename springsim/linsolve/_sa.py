@@ -146,6 +146,9 @@ def smoothed_aggregation_levels(A: sp.bsr_matrix, B: np.ndarray, *, theta: float
         T, Bc = fit_candidates(agg, Bk)
         D = block_diagonal(Ak)
         Dinv = np.linalg.inv(D)
+        # the smoothers' block inverse too: pyamg's ``get_block_diag`` returns ``A.block_D_inv`` when
+        # set, so each level inverts its diagonal once instead of three times (n = 256: 0.05 s a setup)
+        Ak.block_D_inv = Dinv
         rho = lanczos_rho(Ak, D, Dinv, steps=lanczos_steps)
         if not (np.isfinite(rho) and rho > 0.0):
             raise ArithmeticError("spectral radius estimate of D^-1 A broke down (matrix not positive definite)")

@@ -61,6 +61,13 @@ def test_levels_are_galerkin_and_spd():
         np.testing.assert_allclose(Ac, P.T @ fine.A.toarray() @ P, rtol=1e-10, atol=1e-10 * np.abs(Ac).max())
         np.testing.assert_allclose(Ac, Ac.T, rtol=0, atol=1e-10 * np.abs(Ac).max())
         assert np.linalg.eigvalsh(0.5 * (Ac + Ac.T)).min() > 0.0
+    # every smoothed level carries its inverted block diagonal for the smoothers, equal to the
+    # pseudo-inverse pyamg's get_block_diag would compute for them
+    from pyamg.util.utils import get_block_diag
+    for lv in levels[:-1]:
+        fresh = lv.A.copy()  # without the cached attribute
+        np.testing.assert_allclose(get_block_diag(lv.A, blocksize=lv.A.blocksize[0]), get_block_diag(
+            fresh, blocksize=fresh.blocksize[0]), rtol=1e-10, atol=1e-12 * np.abs(lv.A.block_D_inv).max())
     # the passed-back aggregates reproduce the hierarchy exactly
     again, _ = smoothed_aggregation_levels(M, B, max_coarse=10, aggregates=aggs)
     for a, b in zip(levels, again):
