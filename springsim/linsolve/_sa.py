@@ -114,6 +114,8 @@ def smoothed_aggregation_levels(A: sp.bsr_matrix, B: np.ndarray, *, theta: float
     -------
     levels : list of pyamg ``MultilevelSolver.Level``
         With ``A``, ``B``, ``P``, ``R`` (``R = P^T``) set; the last level has ``A`` and ``B``.
+        Every level's ``A`` but the last (the given ``A`` included) gets the attribute
+        ``block_D_inv``, its inverted block diagonal, which pyamg's block smoothers then reuse.
     aggregates : list of csr_matrix
         The aggregation operator of every level but the last (pass back to reuse).
 
