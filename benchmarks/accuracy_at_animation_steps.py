@@ -52,6 +52,7 @@ from pathlib import Path
 import numpy as np
 
 from springsim import ModelBuilder, make_integrator, simulate
+from springsim._argtypes import positive_float
 from springsim.adaptive import simulate_adaptive
 from springsim.forces import make_force_terms
 from springsim.integrators import ImplicitIntegrator, StepStats
@@ -376,21 +377,17 @@ def main(argv=None):
     p.add_argument("--skip-spring", action="store_true", help="skip the undamped-spring energy table")
     p.add_argument("--newton-maxiter", type=int, default=NEWTON_DEFAULT,
                    help=f"Newton iteration limit of the method runs (default {NEWTON_DEFAULT})")
-    p.add_argument("--t-end", type=float, default=T_DEFAULT,
+    p.add_argument("--t-end", type=positive_float, default=T_DEFAULT,
                    help=f"horizon [s] (default {T_DEFAULT}; other values tag the output files _T<t>)")
     p.add_argument("--sensitivity", type=int, nargs=2, metavar=("N", "STEPS"),
                    help="only the perturbation-growth run of the N x N cloth with STEPS steps over T")
     p.add_argument("--delta", type=float, default=1e-9, help="perturbation of --sensitivity [m] (default 1e-9)")
-    p.add_argument("--h-max", type=float, help="step cap of the adaptive runs [s] (default: T / 10; tags the CSV "
+    p.add_argument("--h-max", type=positive_float, help="step cap of the adaptive runs [s] (default: T / 10; tags the CSV "
                                                "files _hmax<h>)")
     a = p.parse_args(argv)
     global T_END, NEWTON_MAXITER, H_MAX
     NEWTON_MAXITER = a.newton_maxiter
-    if not (a.t_end > 0 and np.isfinite(a.t_end)):
-        p.error(f"--t-end: must be a finite number > 0, got {a.t_end}")
     T_END = a.t_end
-    if a.h_max is not None and not (0 < a.h_max < np.inf):
-        p.error(f"--h-max: must be a finite number > 0, got {a.h_max}")
     H_MAX = a.h_max
     SOLVER.update(name=a.solver, rtol=a.linear_rtol, ref_name=a.ref_solver or a.solver)
     warnings.simplefilter("ignore")

@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import math
 
-__all__ = ["int_at_least"]
+__all__ = ["int_at_least", "positive_float"]
 
 
 def int_at_least(lo: int):
@@ -21,3 +22,14 @@ def int_at_least(lo: int):
 
     convert.__name__ = f"integer >= {lo}"
     return convert
+
+
+def positive_float(text: str) -> float:
+    """A converter accepting finite numbers ``> 0`` (``type=positive_float``)."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number, got {text!r}") from None
+    if not (math.isfinite(v) and v > 0):
+        raise argparse.ArgumentTypeError(f"must be finite and > 0, got {text}")
+    return v

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
-from ._argtypes import int_at_least
+from ._argtypes import int_at_least, positive_float
 from .errors import SceneError, SimulationError, SpringsimError
 
 __all__ = ["COMMANDS", "Command", "main", "build_parser"]
@@ -88,35 +88,25 @@ _positive_int = int_at_least(1)
 _nonnegative_int = int_at_least(0)
 
 
-def _positive_float(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a number, got {text!r}") from None
-    if not (math.isfinite(v) and v > 0):
-        raise argparse.ArgumentTypeError(f"must be finite and > 0, got {text}")
-    return v
-
-
 def _run_add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("scene", help="scene file (YAML)")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--steps", type=_nonnegative_int, help="number of steps (default: the scene's, else 100)")
-    g.add_argument("--duration", type=_positive_float, metavar="T", help="simulated time [s] (steps = ceil(T/dt))")
-    p.add_argument("--dt", type=_positive_float, metavar="H", help="time step [s] (overrides solver.timestep)")
+    g.add_argument("--duration", type=positive_float, metavar="T", help="simulated time [s] (steps = ceil(T/dt))")
+    p.add_argument("--dt", type=positive_float, metavar="H", help="time step [s] (overrides solver.timestep)")
     p.add_argument("--integrator", metavar="NAME", help="integrator (overrides solver.type)")
     p.add_argument("--solver", metavar="NAME", help="linear solver (overrides solver.linear_solver)")
     p.add_argument("--jacobian", metavar="MODE", help="Jacobian mode (overrides solver.jacobian)")
-    p.add_argument("--rtol", type=_positive_float, metavar="R",
+    p.add_argument("--rtol", type=positive_float, metavar="R",
                    help="relative tolerance of iterative linear solvers (overrides solver.linear_rtol)")
-    p.add_argument("--newton-tol", type=_positive_float, metavar="TOL", help="Newton tolerance on |dv| [m/s]")
+    p.add_argument("--newton-tol", type=positive_float, metavar="TOL", help="Newton tolerance on |dv| [m/s]")
     p.add_argument("--newton-maxiter", type=_positive_int, metavar="N", help="Newton iteration limit")
-    p.add_argument("--time-rtol", type=_positive_float, metavar="R",
+    p.add_argument("--time-rtol", type=positive_float, metavar="R",
                    help="adaptive time stepping (bdf2, tr_bdf2): relative local error tolerance; --dt is then "
                         "the first step and the frame spacing (overrides solver.time_rtol)")
-    p.add_argument("--time-atol", type=_positive_float, metavar="A",
+    p.add_argument("--time-atol", type=positive_float, metavar="A",
                    help="adaptive time stepping: absolute local error tolerance [m, m/s] (overrides solver.time_atol)")
-    p.add_argument("--max-step", type=_positive_float, metavar="H",
+    p.add_argument("--max-step", type=positive_float, metavar="H",
                    help="adaptive time stepping: largest step [s] (overrides solver.max_step; default a tenth "
                         "of the run)")
     p.add_argument("--out", metavar="FILE.npz", help="write frames t (F,), q (F,N,3), qd (F,N,3) to an .npz")
