@@ -90,7 +90,7 @@ class Trapezoidal(ImplicitIntegrator):
         q, v = state_in.particle_q, state_in.particle_qd
         c = 0.5 * dt
         a = self.acceleration(q, v)
-        q1, v1 = self.solve_stage(q + c * v, v + c * a, c, v + dt * a, stats)
+        q1, v1, _ = self.solve_stage(q + c * v, v + c * a, c, v + dt * a, stats)
         state_out.particle_q[...] = q1
         state_out.particle_qd[...] = v1
         return stats

@@ -1,7 +1,8 @@
 """Error-controlled adaptive time stepping with output frames at requested times.
 
-The integrator (``bdf2`` or ``tr_bdf2``, or any integrator exposing ``error_estimate``
-after each step, a pair ``(err_q, err_v)`` of (N, 3) arrays) takes a step of size ``h``;
+The integrator (``bdf2`` or ``tr_bdf2``: any with ``has_error_estimate``, which sets
+``error_estimate``, a pair ``(err_q, err_v)`` of (N, 3) arrays, after each step) takes a
+step of size ``h``;
 the driver measures the local error in the weighted RMS norm over free DOFs::
 
     err = sqrt(mean((e_i / (atol + rtol max(|y_i^n|, |y_i^{n+1}|)))^2))
@@ -16,9 +17,12 @@ next step is::
 with ``safety = 0.9``, ``grow = 4`` (2 for BDF2, whose variable-step form is zero-stable
 only for step ratios below 1 + sqrt(2); 1 right after a rejection), ``shrink = 0.2``,
 clipped to ``[h_min, h_max]``. A rejected step is retried from the same state (the
-multistep history is reused, see :class:`~springsim.integrators.bdf2.StepHistory`);
-a Newton failure (``newton_converged`` False or a non-finite state) counts as a rejection
-and retries with ``h/4``. Failing at ``h_min`` raises :class:`SimulationError`.
+multistep history is reused, see :class:`~springsim.integrators.bdf2.StepHistory`).
+A failed attempt (a step that is not ``StepStats.ok``: Newton missed its limit, a linear
+solve failed, the matrix lost the masses; a :class:`~springsim.errors.SolverError`; a
+blow-up by NaN/inf or the energy bound of :mod:`springsim.energy`) is retried with ``h/4``.
+Failing at ``h_min`` raises :class:`~springsim.errors.SimulationError` with the frames so far,
+as a fixed-step run does (:mod:`springsim.driver`).
 
 Output frames at the requested times come from cubic Hermite interpolation of ``q`` between
 the two step ends (values ``q``, slopes ``qd``); velocities are the derivative of that cubic.
@@ -28,14 +32,11 @@ exactly; the last step is shortened to land on ``t_end``.
 
 from __future__ import annotations
 
-import time
-import warnings
-
 import numpy as np
 
-from .driver import SimulationInterrupted, Trajectory
-from .errors import SceneError, SimulationError
-from .integrators import Integrator, NewtonConvergenceWarning, StepStats, make_integrator
+from .driver import RunRecorder, Trajectory
+from .errors import SceneError, SimulationError, SpringsimError
+from .integrators import INTEGRATORS, Integrator, make_integrator
 
 __all__ = ["simulate_adaptive", "hermite_frame"]
 
@@ -75,7 +76,8 @@ def simulate_adaptive(model, integrator, t_end: float, *, frame_dt: float | None
     ----------
     model : Model
     integrator : str or Integrator
-        ``"bdf2"``, ``"tr_bdf2"`` or an instance exposing ``error_estimate``.
+        ``"bdf2"``, ``"tr_bdf2"`` or an instance of an integrator with ``has_error_estimate``,
+        built for ``model``.
     t_end : float
         Final time [s], > 0.
     frame_dt : float, optional
@@ -109,7 +111,8 @@ def simulate_adaptive(model, integrator, t_end: float, *, frame_dt: float | None
     -------
     Trajectory
         Frames at ``0`` and the requested times; ``stats`` holds the accepted steps' StepStats;
-        ``adaptive_stats`` (attribute) a dict: ``accepted``, ``rejected``, ``newton_failures``,
+        ``adaptive_stats`` a dict: ``accepted``, ``rejected`` (all rejections), ``failed_attempts``
+        (those that failed rather than missed the tolerance), ``newton_failures``,
         ``newton_iterations``, ``linear_iterations``, ``h_min``, ``h_max``, ``h_mean``.
 
     Raises
@@ -149,102 +152,100 @@ def simulate_adaptive(model, integrator, t_end: float, *, frame_dt: float | None
     h = min(max(h, h_min), h_max)
 
     if isinstance(integrator, str):
-        integrator_options.setdefault("on_nonconvergence", "ignore")
         integrator = make_integrator(integrator, model, **integrator_options)
-    if not isinstance(integrator, Integrator) or not hasattr(integrator, "error_estimate"):
+    elif integrator_options:
+        raise TypeError(f"integrator options ({', '.join(integrator_options)}) need an integrator name, not an "
+                        f"instance")
+    if not isinstance(integrator, Integrator) or not integrator.has_error_estimate:
         raise SceneError("solver.type", f"adaptive stepping needs an integrator with an error estimate "
-                                        f"(bdf2, tr_bdf2), got {getattr(integrator, 'name', integrator)!r}")
+                                        f"({', '.join(k for k, c in INTEGRATORS.items() if c.has_error_estimate)}), "
+                                        f"got {getattr(integrator, 'name', integrator)!r}")
     integrator.reset()
-    order = getattr(integrator, "order", 2)
-    grow = min(grow, getattr(integrator, "max_step_ratio", grow))
-    expo = -1.0 / (order + 1)
+    grow = min(grow, integrator.max_step_ratio)
+    expo = -1.0 / (integrator.order + 1)
     free = model.free_particles
+    fixed = model.particle_fixed
 
-    s0 = model.state() if state is None else state.copy()
-    s1 = s0.copy()
-    t = 0.0
-    ts, qs, qds = [0.0], [s0.particle_q.copy()], [s0.particle_qd.copy()]
-    stats: list[StepStats] = []
-    info = dict(accepted=0, rejected=0, newton_failures=0, newton_iterations=0, linear_iterations=0,
-                h_min=np.inf, h_max=0.0, h_mean=0.0)
+    run = RunRecorder(model, integrator, state)
+    info = dict(accepted=0, rejected=0, newton_failures=0, failed_attempts=0, newton_iterations=0,
+                linear_iterations=0, h_min=np.inf, h_max=0.0, h_mean=0.0)
+    run.adaptive_stats = info
     fi = 0
-    wall0 = time.perf_counter()
+    t = 0.0
     just_rejected = False
     attempts = 0
-
-    def trajectory():
-        tr = Trajectory(np.array(ts), np.array(qs), np.array(qds), stats, time.perf_counter() - wall0)
-        info["h_mean"] = float(t / max(info["accepted"], 1))
-        tr.adaptive_stats = dict(info)
-        return tr
-
     try:
         while fi < t_frames.size:
             attempts += 1
             if attempts > max_steps:
-                raise SimulationError(f"adaptive stepping exceeded max_steps={max_steps} at t={t:g} s",
-                                      trajectory(), step=info["accepted"])
-            last = t + h >= t_end * (1 - 1e-12) or t_end - (t + h) < h_min
-            if last:
-                h = t_end - t
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", NewtonConvergenceWarning)
-                st = integrator.step(s0, s1, h)
-            info["newton_iterations"] += st.newton_iterations
-            info["linear_iterations"] += st.linear_iterations
-            finite = s1.is_finite()
-            if not finite or not st.newton_converged:
+                raise SimulationError(f"adaptive stepping exceeded max_steps={max_steps} at t={t:g} s; {run.kept()}",
+                                      run.trajectory(keep_last=True), step=info["accepted"])
+            if t + h >= t_end * (1 - 1e-12) or t_end - (t + h) < h_min:
+                h = t_end - t  # the last step lands on t_end
+            try:
+                st = run.step(h)
+            except SimulationError:
+                raise
+            except SpringsimError as e:  # a solve with no usable solution: retry smaller, like a failed Newton
+                st, why = None, f"{type(e).__name__}: {e}"
+            else:
+                info["newton_iterations"] += st.newton_iterations
+                info["linear_iterations"] += st.linear_iterations
+                why = run.problem(info["accepted"] + 1, t + h) or (None if st.ok else "; ".join(st.failures))
+            if why is not None:
                 info["rejected"] += 1
-                info["newton_failures"] += 1
+                info["failed_attempts"] += 1
+                info["newton_failures"] += st is not None and not st.newton_converged
                 if h <= h_min * (1 + 1e-12):
-                    why = "non-finite state" if not finite else "Newton did not converge"
-                    raise SimulationError(f"adaptive stepping failed at t={t:g} s with h=h_min={h_min:g} s "
-                                          f"({why}); kept {len(ts)} finite frame(s)", trajectory(),
+                    raise SimulationError(f"adaptive stepping failed at t={t:g} s with h = h_min = {h_min:g} s: "
+                                          f"{why}; {run.kept()}", run.trajectory(keep_last=True),
                                           step=info["accepted"])
                 h = max(h_min, 0.25 * h)
                 just_rejected = True
                 continue
             eq, ev = integrator.error_estimate
-            err = _error_norm(eq, s0.particle_q, s1.particle_q, free, time_rtol, time_atol)
+            q0, v0, q1, v1 = run.state.particle_q, run.state.particle_qd, run.scratch.particle_q, run.scratch.particle_qd
+            err = _error_norm(eq, q0, q1, free, time_rtol, time_atol)
             if error_on == "qv":
-                err = np.sqrt(0.5 * (err**2 + _error_norm(ev, s0.particle_qd, s1.particle_qd, free,
-                                                          time_rtol, time_atol)**2))
+                err = np.sqrt(0.5 * (err**2 + _error_norm(ev, v0, v1, free, time_rtol, time_atol)**2))
             fac = safety * err**expo if err > 0 else grow
             if err > 1.0 and h > h_min * (1 + 1e-12):
                 info["rejected"] += 1
                 h = max(h_min, h * min(0.9, max(shrink, fac)))
                 just_rejected = True
                 continue
-            # accepted
+            # accepted: frames in (t, t1] by Hermite interpolation (exactly the state at t1)
             t1 = t + h
             info["accepted"] += 1
             info["h_min"] = float(min(info["h_min"], h))
             info["h_max"] = float(max(info["h_max"], h))
-            stats.append(st)
+            frames = []
             while fi < t_frames.size and t_frames[fi] <= t1 * (1 + 1e-12):
                 tf = t_frames[fi]
                 if abs(tf - t1) <= 1e-12 * max(t1, 1.0):
-                    qf, vf = s1.particle_q.copy(), s1.particle_qd.copy()
+                    frames.append(None)
                 else:
-                    qf, vf = hermite_frame(t, s0.particle_q, s0.particle_qd, t1, s1.particle_q, s1.particle_qd,
-                                           tf)
-                    qf[model.particle_fixed] = s1.particle_q[model.particle_fixed]
-                    vf[model.particle_fixed] = 0.0
-                ts.append(float(tf))
-                qs.append(qf)
-                qds.append(vf)
+                    qf, vf = hermite_frame(t, q0, v0, t1, q1, v1, tf)
+                    qf[fixed] = q1[fixed]
+                    vf[fixed] = 0.0
+                    frames.append((tf, qf, vf))
                 fi += 1
-            s0, s1 = s1, s0
+            run.accept(st, t1)
+            for fr in frames:
+                if fr is None:
+                    run.record_current()
+                else:
+                    run.add_frame(*fr)
             t = t1
+            info["h_mean"] = float(t / info["accepted"])
             if progress is not None:
                 progress(t, t_end)
             h = h * min(1.0 if just_rejected else grow, max(shrink, fac))
             h = min(max(h, h_min), h_max)
             just_rejected = False
     except KeyboardInterrupt:
-        raise SimulationInterrupted(f"interrupted at t={t:g} s; kept {len(ts)} frame(s)", trajectory(),
-                                    step=info["accepted"]) from None
-    return trajectory()
+        raise run.interrupted(f"t={t:g} s of {t_end:g} s") from None
+    return run.finish()
 
 
 def _error_norm(e, y0, y1, free, rtol, atol):

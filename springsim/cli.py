@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import Callable
 
 from ._argtypes import int_at_least, positive_float
-from .errors import SceneError, SimulationError, SpringsimError
+from .errors import SceneError, SimulationError, SimulationInterrupted, SpringsimError, SpringsimWarning
 
 __all__ = ["COMMANDS", "Command", "main", "build_parser"]
 
@@ -123,7 +123,7 @@ def _fmt_s(s: float) -> str:
     return f"{s * 1e6:.1f} us"
 
 
-def _summary_lines(scene, cfg, integrator, traj, steps: int) -> list[tuple[str, str]]:
+def _summary_lines(scene, cfg, integrator, traj) -> list[tuple[str, str]]:
     m = scene.model
     s = traj.summary()
     rows = [
@@ -134,39 +134,77 @@ def _summary_lines(scene, cfg, integrator, traj, steps: int) -> list[tuple[str, 
         ("dofs", str(m.dof_count)),
     ]
     if integrator.implicit:
-        rows.append(("integrator", f"{cfg.integrator} (linear solver {getattr(integrator.solver, 'name', type(integrator.solver).__name__)}, "
+        solver = integrator.solver
+        chosen = f" -> {solver.last_choice}" if getattr(solver, "last_choice", None) else ""
+        rows.append(("integrator", f"{cfg.integrator} (linear solver {solver.name}{chosen}, "
                                    f"jacobian {integrator.jacobian})"))
     else:
         rows.append(("integrator", cfg.integrator))
+    a = traj.adaptive_stats
+    if a:
+        rows.append(("steps", f"{a['accepted']} adaptive (mean h {a['h_mean']:.3g} s, h in [{a['h_min']:.3g}, "
+                              f"{a['h_max']:.3g}] s), {a['rejected']} rejected"))
+    else:
+        rows.append(("steps", f"{s['steps']} x dt = {cfg.dt:g} s"))
     rows += [
-        ("steps", f"{s['steps']} x dt = {cfg.dt:g} s"),
-        ("simulated time", f"{s['steps'] * cfg.dt:g} s"),
-        ("wall time", _fmt_s(s["wall_s"])),
+        ("simulated time", f"{traj.t[-1]:g} s"),
+        ("wall time", f"{_fmt_s(s['wall_s'])} (CPU {_fmt_s(s['cpu_s'])})"),
         ("time per step", _fmt_s(s["step_s"])),
     ]
     if integrator.implicit and s["steps"]:
         rows += [
             ("assembly per step", _fmt_s(s["assembly_s"])),
             ("linear solve per step", _fmt_s(s["solve_s"])),
+            ("other per step", _fmt_s(s["other_s"])),
             ("Newton iterations", f"{s['newton_iterations']:.2f} per step"),
             ("linear iterations", f"{s['linear_iterations']:.2f} per step"),
-            ("Newton non-converged", f"{s['newton_failures']} step(s)"),
+            ("failed steps", f"{s['failed_steps']} (Newton {s['newton_failures']}, linear solves "
+                             f"{s['linear_failures']}, ill-conditioned {s['ill_conditioned']})"),
             ("solver fallbacks", str(s["fallbacks"])),
             ("max linear residual", f"{s['max_linear_residual']:.2e}"),
+            ("max precision loss", f"{s['max_precision_loss']:.1e}"),
         ]
     return rows
 
 
+def _save_or_rescue(traj, out: str) -> None:
+    """Write ``traj`` to ``out``; if that fails, to a rescue file in the temporary directory (named on stderr)."""
+    try:
+        traj.save(out)
+        return
+    except (OSError, SpringsimError) as e:
+        why = getattr(e, "strerror", None) or str(e)
+    import tempfile
+
+    fd, rescue = tempfile.mkstemp(prefix="springsim-rescue-", suffix=".npz")
+    os.close(fd)
+    try:
+        traj.save(rescue)
+    except (OSError, SpringsimError) as e2:
+        raise SpringsimError(f"--out {out}: cannot write ({why}); the rescue copy failed too "
+                             f"({getattr(e2, 'strerror', None) or e2}); the frames are lost") from None
+    print(f"springsim: error: --out {out}: cannot write ({why}); saved {traj.frame_count} frame(s) to {rescue} "
+          f"instead", file=sys.stderr)
+    raise _Exit(1)
+
+
+class _Exit(Exception):
+    """Leave :func:`main` with this exit status (the message was printed already)."""
+
+    def __init__(self, status: int):
+        super().__init__(status)
+        self.status = status
+
+
 def _run(args: argparse.Namespace) -> int:
-    from .driver import SimulationInterrupted, simulate
-    from .integrators import NewtonConvergenceWarning, make_integrator
+    from .adaptive import simulate_adaptive
+    from .driver import check_output_path, simulate, steps_for_duration
+    from .integrators import make_integrator
     from .scene import DEFAULT_STEPS, load_scene
 
     scene = load_scene(Path(args.scene))  # always a path on the command line, never YAML text
     if args.out is not None:
-        out_dir = os.path.dirname(os.path.abspath(args.out))
-        if not os.path.isdir(out_dir):
-            raise UsageError(f"--out {args.out}: directory {out_dir} does not exist")
+        check_output_path(args.out)  # before the run: a run is never lost to an unwritable --out
     cfg = scene.config.with_overrides(dt=args.dt, integrator=args.integrator, linear_solver=args.solver,
                                       jacobian=args.jacobian, linear_rtol=args.rtol, newton_tol=args.newton_tol,
                                       newton_maxiter=args.newton_maxiter, time_rtol=args.time_rtol,
@@ -174,7 +212,10 @@ def _run(args: argparse.Namespace) -> int:
     if args.steps is not None:
         steps = args.steps
     elif args.duration is not None:
-        steps = max(int(math.ceil(args.duration / cfg.dt - 1e-9)), 1)
+        try:
+            steps = steps_for_duration(args.duration, cfg.dt)
+        except ValueError as e:
+            raise UsageError(f"--duration {args.duration:g}: {e}") from None
     else:
         steps = cfg.steps if cfg.steps is not None else DEFAULT_STEPS
     integrator = make_integrator(cfg.integrator, scene.model, **cfg.integrator_options())
@@ -183,12 +224,12 @@ def _run(args: argparse.Namespace) -> int:
     if not args.quiet and sys.stderr.isatty():
         progress = ProgressBar(sys.stderr)
     record = args.out is not None
+    adaptive = cfg.time_rtol is not None or cfg.time_atol is not None
     try:
         with warnings.catch_warnings():
-            # counted in the summary instead of one multi-line warning per step
-            warnings.simplefilter("ignore", NewtonConvergenceWarning)
-            if cfg.time_rtol is not None or cfg.time_atol is not None:  # adaptive, frames every dt
-                from .adaptive import simulate_adaptive
+            # the CLI reports failed steps and fallbacks in its own lines below
+            warnings.simplefilter("ignore", SpringsimWarning)
+            if adaptive:  # frames every dt
                 rtol = cfg.time_rtol if cfg.time_rtol is not None else cfg.time_atol
                 atol = cfg.time_atol if cfg.time_atol is not None else cfg.time_rtol
                 traj = simulate_adaptive(scene.model, integrator, steps * cfg.dt, time_rtol=rtol, time_atol=atol,
@@ -199,33 +240,29 @@ def _run(args: argparse.Namespace) -> int:
             else:
                 traj = simulate(scene.model, integrator, cfg.dt, steps, frame_every=args.frame_every,
                                 record=record, progress=progress)
-    except SimulationError as e:
+    except (SimulationError, SimulationInterrupted) as e:
         if progress is not None:
             progress.close()
         interrupted = isinstance(e, SimulationInterrupted)
         print(f"springsim: {'interrupted' if interrupted else 'error'}: {e}", file=sys.stderr)
         if args.out is not None and e.trajectory is not None and e.trajectory.frame_count:
-            e.trajectory.save(args.out)
+            _save_or_rescue(e.trajectory, args.out)
             print(f"springsim: saved {e.trajectory.frame_count} finite frame(s) up to "
                   f"t={e.trajectory.t[-1]:g} s to {args.out}", file=sys.stderr)
         return 130 if interrupted else 1
     if progress is not None:
         progress.close()
     if args.out is not None:
-        traj.save(args.out)
-    failures = traj.summary()["newton_failures"]
-    if failures:
-        print(f"springsim: warning: Newton did not converge in {failures} of {len(traj.stats)} step(s) "
-              f"(newton_tol {integrator.newton_tol:g}, newton_maxiter {integrator.newton_maxiter})", file=sys.stderr)
+        _save_or_rescue(traj, args.out)
+    s = traj.summary()
+    if s["failed_steps"]:
+        first = next(x for x in traj.stats if not x.ok)
+        print(f"springsim: warning: {s['failed_steps']} of {s['steps']} step(s) did not meet their criteria "
+              f"(first: {'; '.join(first.failures)})", file=sys.stderr)
     if not args.quiet:
-        rows = _summary_lines(scene, cfg, integrator, traj, steps)
-        if getattr(traj, "adaptive_stats", None):
-            a = traj.adaptive_stats
-            rows = [(k, v) if k != "steps" else (k, f"{a['accepted']} (adaptive, mean h {a['h_mean']:.3g} s)")
-                    for k, v in rows if k != "simulated time"] + [("simulated time", f"{traj.t[-1]:g} s")]
-            rows.append(("adaptive steps", f"{a['accepted']} accepted, {a['rejected']} rejected, h in "
-                                           f"[{a['h_min']:.3g}, {a['h_max']:.3g}] s (time_rtol {rtol:g}, "
-                                           f"time_atol {atol:g})"))
+        rows = _summary_lines(scene, cfg, integrator, traj)
+        if adaptive:
+            rows.append(("time tolerances", f"time_rtol {rtol:g}, time_atol {atol:g}"))
         if args.out is not None:
             rows.append(("output", f"{args.out} ({traj.frame_count} frames)"))
         w = max(len(k) for k, _ in rows)
@@ -288,9 +325,13 @@ def main(argv: list[str] | None = None) -> int:
         return _error(msg)
     except SpringsimError as e:
         return _error(str(e))
+    except _Exit as e:
+        return e.status
     except KeyboardInterrupt:
         print("springsim: interrupted", file=sys.stderr)
         return 130
+    except MemoryError:
+        return _error("out of memory: the scene is too large for this machine")
     except OSError as e:
         return _error(f"{e.filename + ': ' if getattr(e, 'filename', None) else ''}{e.strerror or e}")
 

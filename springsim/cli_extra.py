@@ -25,21 +25,10 @@ __all__ = ["plot_command", "render_command", "export_command", "load_trajectory"
 
 
 def load_trajectory(path):
-    """Read a trajectory ``.npz`` written by :meth:`Trajectory.save` (arrays ``t``, ``q``, ``qd``)."""
+    """Read a trajectory ``.npz`` written by :meth:`Trajectory.save` (see :meth:`Trajectory.load`)."""
     from .driver import Trajectory
 
-    path = Path(path)
-    if not path.exists():
-        raise SpringsimError(f"{path}: no such file")
-    try:
-        with np.load(path) as d:
-            t, q = np.asarray(d["t"]), np.asarray(d["q"])
-            qd = np.asarray(d["qd"]) if "qd" in d else np.zeros_like(q)
-    except (KeyError, ValueError, OSError) as e:
-        raise SpringsimError(f"{path}: not a springsim trajectory (.npz with t, q, qd): {e}") from None
-    if q.ndim != 3 or q.shape[2] != 3 or t.shape[0] != q.shape[0]:
-        raise SpringsimError(f"{path}: q must have shape (frames, particles, 3) matching t, got {q.shape}")
-    return Trajectory(t, q, qd)
+    return Trajectory.load(path)
 
 
 def _simulate_scene(scene, steps, dt=None, frame_every: int = 1):

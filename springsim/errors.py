@@ -1,12 +1,18 @@
-"""Exceptions raised by springsim.
+"""Exceptions, warnings and the interrupt raised by springsim.
 
 Every error springsim raises on purpose derives from :class:`SpringsimError`, so a
-caller (and the CLI) can tell user errors from bugs.
+caller (and the CLI) can tell user errors from bugs. Input errors are
+:class:`SceneError` (a ``ValueError``) or :class:`SceneTypeError` (also a ``TypeError``),
+with a one-line message naming the field or parameter. An interrupted run raises
+:class:`SimulationInterrupted`, a ``KeyboardInterrupt``: ``except Exception`` and
+``except SimulationError`` do not swallow Ctrl-C.
 """
 
 from __future__ import annotations
 
-__all__ = ["SpringsimError", "SceneError", "SimulationError", "SolverError"]
+__all__ = ["SpringsimError", "SceneError", "SceneTypeError", "SimulationError", "SolverError",
+           "SimulationInterrupted", "SpringsimWarning", "ConvergenceWarning", "FallbackWarning",
+           "NewtonConvergenceWarning"]
 
 
 class SpringsimError(Exception):
@@ -30,18 +36,58 @@ class SceneError(SpringsimError, ValueError):
         super().__init__(f"{path}: {message}" if path else message)
 
 
+class SceneTypeError(SceneError, TypeError):
+    """Scene or model input of the wrong type (e.g. a string where a number belongs)."""
+
+
 class SolverError(SpringsimError):
     """A linear or nonlinear solve failed and no fallback could recover."""
 
 
 class SimulationError(SpringsimError):
-    """A simulation stopped early (blow-up to NaN/inf, interruption).
+    """A simulation stopped early (blow-up, failed solve).
 
     The frames computed before the failure are kept in :attr:`trajectory`
-    (a :class:`springsim.driver.Trajectory` or ``None``).
+    (a :class:`springsim.driver.Trajectory` or ``None``); :attr:`step` is the step at which
+    it stopped.
     """
 
     def __init__(self, message: str, trajectory=None, step: int | None = None):
         super().__init__(message)
         self.trajectory = trajectory
         self.step = step
+
+
+class SimulationInterrupted(KeyboardInterrupt):
+    """The run was interrupted (Ctrl-C); :attr:`trajectory` holds the frames so far.
+
+    A ``KeyboardInterrupt``, so that it stops the caller too unless caught by name.
+    """
+
+    def __init__(self, message: str, trajectory=None, step: int | None = None):
+        super().__init__(message)
+        self.trajectory = trajectory
+        self.step = step
+
+
+class SpringsimWarning(UserWarning):
+    """Base class of springsim's warnings."""
+
+
+class ConvergenceWarning(SpringsimWarning, RuntimeWarning):
+    """Steps of a run did not meet their criteria (Newton, a linear solve, the matrix conditioning).
+
+    The drivers emit it once per run with the count; the details are in each step's
+    :class:`~springsim.integrators.StepStats` (``ok``, ``failures``).
+    """
+
+
+#: Former name of :class:`ConvergenceWarning`.
+NewtonConvergenceWarning = ConvergenceWarning
+
+
+class FallbackWarning(SpringsimWarning, RuntimeWarning):
+    """A linear solver handed over to its fallback during a run (the results are right, but slower).
+
+    Emitted once per run by the drivers with the count; reasons in ``StepStats.fallbacks``.
+    """

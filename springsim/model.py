@@ -52,12 +52,15 @@ class Model:
     gravitational_indices : ndarray of int64, shape (P, 2)
     gravitational_G : ndarray, shape (P,)
         Gravitational constant of each pair [N m^2/kg^2].
+    gravitational_softening : ndarray, shape (P,)
+        Softening length of each pair [m]: below it the attraction has a linear core (see
+        :mod:`springsim.forces.gravitational`; default :func:`springsim.builder.default_softening`).
     gravity : float
         Acceleration along the up axis [m/s^2] (default -9.81).
     up_axis : int
         0, 1 or 2 for x, y, z.
     pair_epsilon : float
-        Distance [m] below which a pair's direction is treated as undefined (see
+        Distance [m] below which a spring's direction is treated as undefined (see
         :mod:`springsim.forces.spring`).
     """
 
@@ -73,6 +76,7 @@ class Model:
     spring_rest_length: np.ndarray
     gravitational_indices: np.ndarray
     gravitational_G: np.ndarray
+    gravitational_softening: np.ndarray
     gravity: float = -9.81
     up_axis: int = 2
     pair_epsilon: float = 1e-9

@@ -158,7 +158,8 @@ class SystemAssembler:
         self._scatter = sp.csr_matrix((cat(signs, np.float64), (dest, cat(srcs, np.int64))),
                                       shape=(self.pattern.nnzb, self.value_count))
         self._mass = np.zeros((self.pattern.nnzb, 3, 3))
-        self._mass[self.pattern.diagonal_positions] = model.particle_mass[self.free][:, None, None] * np.eye(3)
+        self._free_mass = model.particle_mass[self.free]
+        self._mass[self.pattern.diagonal_positions] = self._free_mass[:, None, None] * np.eye(3)
         self._values = np.empty((self.value_count, 3, 3))
         self._work = {id(term): {} for term in self.terms}  # per-term temporaries, kept between assemblies
         damped = any(getattr(t, "damped", np.zeros(0)).size for t in self.terms)
@@ -170,6 +171,22 @@ class SystemAssembler:
     @property
     def dof_count(self) -> int:
         return 3 * self.free.size
+
+    def precision_loss(self, matrix: SystemMatrix | None = None) -> float:
+        """Relative precision to which the assembled matrix still holds the particle masses.
+
+        ``u max_i max|D_i| / m_i`` over the 3x3 diagonal blocks ``D_i = m_i I - a dF_ii/dq - b dF_ii/dqd``
+        of the free particles (``u`` the unit round-off): the mass enters ``D_i`` as one summand
+        next to the stiffness, so it is kept only to that relative precision. It bounds the
+        relative error of the motions the masses alone determine (the centre of mass of a pair
+        held together by a stiff spring or a gravitational core); above 1 the masses are lost
+        in rounding and the matrix is singular to working precision (docs/robustness.md).
+        """
+        m = self.matrix if matrix is None else matrix
+        if self.free.size == 0:
+            return 0.0
+        D = m.bsr.data[self.pattern.diagonal_positions].reshape(-1, 9)
+        return float(np.finfo(np.float64).eps * (np.abs(D).max(axis=1) / self._free_mass).max())
 
     def assemble(self, q: np.ndarray, qd: np.ndarray, a: float, b: float, mode: str = "exact") -> SystemMatrix:
         """Fill and return :attr:`matrix` = ``M - a dF/dq - b dF/dqd`` at ``(q, qd)``.

@@ -148,6 +148,15 @@ class ForceTerm(ABC):
         """Potential energy [J] at ``q`` (0 for dissipative terms)."""
         return 0.0
 
+    def potential_floor(self) -> float:
+        """A lower bound [J] of :meth:`potential_energy` over all positions, or ``-inf``.
+
+        Terms whose potential is unbounded below must override this (uniform gravity is
+        handled by the caller, see :mod:`springsim.energy`); the default 0 holds for
+        dissipative terms and for springs.
+        """
+        return 0.0
+
     @property
     def item_count(self) -> int:
         """Number of items (pairs, particles) this term evaluates."""
@@ -165,11 +174,11 @@ def scratch(work: dict | None, name: str, shape: tuple) -> np.ndarray:
     return a
 
 
-def pair_geometry(q: np.ndarray, pairs: np.ndarray, eps: float, work: dict | None = None):
+def pair_geometry(q: np.ndarray, pairs: np.ndarray, eps, work: dict | None = None):
     """Vectorised pair geometry.
 
     Returns ``d = q_i - q_j`` (P, 3), ``l = |d|`` (P,), ``n = d / l`` (P, 3) and a
-    mask ``near`` of pairs closer than ``eps`` (where ``n`` is set to zero). With ``work``
+    mask ``near`` of pairs closer than ``eps`` (a float or one per pair; there ``n`` is set to zero). With ``work``
     (see :meth:`ForceTerm.eval_jacobians`) ``d``, ``l`` and ``n`` live in it.
     """
     P = pairs.shape[0]

@@ -9,8 +9,11 @@ For a pair (i, j) with ``c = G m_i m_j``, ``d = q_i - q_j``, ``l = |d|``, ``n = 
 ``spd`` mode projects it to ``K = -c/l^3 (I - n n^T)`` (negative eigenvalue clamped
 at 0). There is no velocity dependence.
 
-Degenerate geometry: below ``l < eps`` the force is ``-c d / eps^3`` (a linear core,
-continuous at ``l = eps``) with ``K = -c/eps^3 I``: a close encounter stays finite.
+Softening: below the pair's softening length ``l < eps`` the force is ``-c d / eps^3`` (a
+linear core, continuous at ``l = eps``) with ``K = -c/eps^3 I``, so a close encounter or
+two particles at the same place stay finite. ``eps`` is per pair
+(``model.gravitational_softening``); its default keeps the implicit matrix
+well-conditioned (:func:`springsim.builder.default_softening`).
 """
 
 from __future__ import annotations
@@ -32,16 +35,16 @@ class ForceGravitational(ForceTerm):
     pairs : ndarray (P, 2)
     c : ndarray (P,)
         ``G m_i m_j`` [N m^2].
-    eps : float
-        Core radius [m].
+    eps : float or ndarray (P,)
+        Softening lengths [m].
     """
 
     name = "gravitational"
 
-    def __init__(self, pairs, c, eps: float = 1e-9):
+    def __init__(self, pairs, c, eps):
         self.pairs = np.asarray(pairs, dtype=np.int64)
         self.c = np.asarray(c, dtype=np.float64)
-        self.eps = float(eps)
+        self.eps = np.broadcast_to(np.asarray(eps, dtype=np.float64), self.c.shape).copy()
         self.layout_q = BlockLayout.pairs(self.pairs)
 
     @classmethod
@@ -52,7 +55,8 @@ class ForceGravitational(ForceTerm):
             return None
         pairs = model.gravitational_indices[keep]
         m = model.particle_mass
-        return cls(pairs, model.gravitational_G[keep] * m[pairs[:, 0]] * m[pairs[:, 1]], model.pair_epsilon)
+        return cls(pairs, model.gravitational_G[keep] * m[pairs[:, 0]] * m[pairs[:, 1]],
+                   model.gravitational_softening[keep])
 
     @property
     def item_count(self) -> int:
@@ -72,6 +76,10 @@ class ForceGravitational(ForceTerm):
         K *= s * (1.0 if mode == "spd" else 3.0)
         K.reshape(-1, 9)[:, ::4] -= s.reshape(-1, 1)
         return Blocks(self.layout_q, K), None
+
+    def potential_floor(self) -> float:
+        # the softened potential is smallest at zero distance: c * 0 / (2 eps^3) - 3 c / (2 eps)
+        return float(-1.5 * np.sum(self.c / self.eps))
 
     def potential_energy(self, q):
         d, l, n, near = pair_geometry(q, self.pairs, self.eps)

@@ -34,3 +34,6 @@ class ForceGravity(ForceTerm):
 
     def potential_energy(self, q):
         return float(-np.sum(self._force * q))
+
+    def potential_floor(self) -> float:
+        return -np.inf if np.any(self._force) else 0.0

@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 from ..errors import SceneError
-from ._base import Integrator, StepStats
-from ._implicit import ImplicitIntegrator, NewtonConvergenceWarning
+from ._base import PRECISION_LOSS_LIMIT, Integrator, StepStats
+from ..errors import ConvergenceWarning, NewtonConvergenceWarning
+from ._implicit import ImplicitIntegrator
 from .explicit_euler import IntegratorExplicitEuler
 from .implicit_euler import IntegratorImplicitEuler
 from .linearized_implicit import IntegratorLinearizedImplicit
@@ -13,7 +14,7 @@ from .symplectic_euler import IntegratorSymplecticEuler
 from .bdf2 import IntegratorBDF2
 from .tr_bdf2 import IntegratorTRBDF2
 
-__all__ = ["INTEGRATORS", "Integrator", "ImplicitIntegrator", "StepStats", "NewtonConvergenceWarning",
+__all__ = ["INTEGRATORS", "Integrator", "ImplicitIntegrator", "StepStats", "PRECISION_LOSS_LIMIT", "ConvergenceWarning", "NewtonConvergenceWarning",
            "IntegratorExplicitEuler", "IntegratorSymplecticEuler", "IntegratorMidpoint",
            "IntegratorLinearizedImplicit", "IntegratorImplicitEuler", "IntegratorBDF2", "IntegratorTRBDF2",
            "make_integrator"]

@@ -15,12 +15,22 @@ import numpy as np
 
 from ..forces import eval_forces, make_force_terms
 
-__all__ = ["Integrator", "StepStats"]
+__all__ = ["Integrator", "StepStats", "PRECISION_LOSS_LIMIT"]
+
+
+#: A step whose system matrix holds some particle's mass only to a relative precision worse than this
+#: (:meth:`springsim.assembly.SystemAssembler.precision_loss`) is reported as ill-conditioned.
+PRECISION_LOSS_LIMIT = 1e-6
 
 
 @dataclass
 class StepStats:
     """What one step cost and how it went.
+
+    A step is trustworthy when :attr:`ok` is True. Otherwise its result is still returned
+    (and recorded by the drivers), but the reasons are in :attr:`failures` and the drivers
+    report it: a warning once per run, the run summary, and in adaptive runs a retry with a
+    smaller step.
 
     Attributes
     ----------
@@ -29,19 +39,35 @@ class StepStats:
     newton_iterations : int
         Newton iterations (0 for explicit methods).
     newton_converged : bool
-        Whether the Newton stopping rule was met (True for explicit/linearized methods).
+        Whether every Newton stage that produced the result met its stopping rule (the
+        update and the residual tests, see :class:`~springsim.integrators.ImplicitIntegrator`);
+        True for explicit and linearized methods.
     newton_step_norm : float
         2-norm of the last Newton update ``|dqd|`` [m/s].
     residual_norm : float
         2-norm of the nonlinear residual at the returned state [N s] (NaN if not computed).
+    residual_ratio : float
+        That residual relative to the size of the balanced terms (NaN if not computed).
     linear_iterations : int
         Krylov iterations summed over the step.
     linear_residual : float
         Largest relative residual of any linear solve in the step.
+    linear_solves : int
+        Linear solves in the step.
+    linear_failures : int
+        Linear solves of the result-producing stages that missed their criterion after every
+        refinement and fallback.
+    precision_loss : float
+        Largest :meth:`~springsim.assembly.SystemAssembler.precision_loss` of the step's
+        matrices: the relative precision to which they hold the particle masses.
     assembly_s, solve_s, force_s : float
         Wall time in numeric assembly, linear solves and force evaluation [s].
     fallbacks : list of str
         Linear-solver fallbacks that happened, with reasons.
+    failures : list of str
+        Why the step is not :attr:`ok` (empty when it is).
+    extra : dict
+        Integrator-specific counters (``jacobian_escalations``, ``order_reduced``, ``retaken``, ...).
     """
 
     dt: float
@@ -49,14 +75,44 @@ class StepStats:
     newton_converged: bool = True
     newton_step_norm: float = 0.0
     residual_norm: float = float("nan")
+    residual_ratio: float = float("nan")
     linear_iterations: int = 0
     linear_residual: float = 0.0
     linear_solves: int = 0
+    linear_failures: int = 0
+    precision_loss: float = 0.0
     assembly_s: float = 0.0
     solve_s: float = 0.0
     force_s: float = 0.0
     fallbacks: list = field(default_factory=list)
+    failures: list = field(default_factory=list)
     extra: dict = field(default_factory=dict)
+
+    @property
+    def ill_conditioned(self) -> bool:
+        """Whether a matrix of the step held the masses worse than :data:`PRECISION_LOSS_LIMIT`."""
+        return self.precision_loss > PRECISION_LOSS_LIMIT
+
+    @property
+    def ok(self) -> bool:
+        """Newton converged, every linear solve met its criterion, and the matrices were well-conditioned."""
+        return self.newton_converged and self.linear_failures == 0 and not self.ill_conditioned
+
+    def fail(self, reason: str) -> None:
+        """Record why the step is not ok (kept once per distinct reason)."""
+        if reason not in self.failures:
+            self.failures.append(reason)
+
+    def retake(self, reason: str) -> None:
+        """Forget the outcome of an abandoned attempt before the step is taken again another way.
+
+        The work stays counted (iterations, times); the failures move to ``extra["retaken"]``.
+        """
+        self.extra.setdefault("retaken", []).append(reason)
+        self.newton_converged = True
+        self.linear_failures = 0
+        self.precision_loss = 0.0
+        self.failures = []
 
 
 class Integrator(ABC):
@@ -73,6 +129,10 @@ class Integrator(ABC):
     implicit: ClassVar[bool] = False
     #: Formal order of accuracy.
     order: ClassVar[int] = 1
+    #: Whether :meth:`step` sets :attr:`error_estimate` (needed by adaptive stepping).
+    has_error_estimate: ClassVar[bool] = False
+    #: Largest ratio of consecutive step sizes the method tolerates (adaptive stepping).
+    max_step_ratio: ClassVar[float] = float("inf")
 
     def __init__(self, model, *, terms=None):
         self.model = model
@@ -81,6 +141,9 @@ class Integrator(ABC):
         self.fixed = model.particle_fixed
         self._inv_mass = np.where(self.fixed, 0.0, 1.0 / model.particle_mass)[:, None]
         self._f = np.zeros((model.particle_count, 3))
+        #: ``(err_q [m], err_v [m/s])``, arrays (N, 3): local error estimate of the last step
+        #: (integrators with :attr:`has_error_estimate`), else None.
+        self.error_estimate: tuple[np.ndarray, np.ndarray] | None = None
 
     def acceleration(self, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
         """``M^-1 F(q, qd)``, zero for fixed particles, shape (N, 3)."""
@@ -89,9 +152,14 @@ class Integrator(ABC):
         a[self.fixed] = 0.0  # not inf * 0 = NaN when a force overflows on a fixed particle
         return a
 
+    def blowup_hint(self) -> str:
+        """Advice for a run of this integrator that blew up (part of the drivers' error message)."""
+        return "try a smaller time step or an implicit integrator"
+
     @abstractmethod
     def step(self, state_in, state_out, dt: float) -> StepStats:
         """Advance ``state_in`` by ``dt`` into ``state_out``."""
 
     def reset(self) -> None:
-        """Forget any history (multistep methods, warm starts)."""
+        """Forget any history (multistep methods, warm starts) and the last error estimate."""
+        self.error_estimate = None

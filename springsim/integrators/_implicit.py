@@ -13,12 +13,30 @@ with the Jacobians at ``(q_hat + c v_i, v_i)``. Implicit Euler is ``c = h``,
 ``q_hat = q^n``, ``v_hat = qd^n`` (seed eq. 1-2); one iteration from ``v_0 = qd^n`` is
 linearized implicit Euler (seed eq. 3-4). The system covers free DOFs only (row and
 column elimination, see :mod:`springsim.assembly.fixed`).
+
+Stopping rule. The seed's rule stops when the update is small, ``|dv|_2 < newton_tol``.
+An update can be small while the iterate is far from the root: when ``c^2 dF/dq`` dwarfs
+``M`` (huge steps, very stiff springs) a position error ``e_q`` shows up in ``v`` only as
+``e_q / c``. So a stage also has to balance its equation: the residual at the returned
+iterate must be small against the terms it balances::
+
+    rho = |R(v)|_2 / (|c F|_2 + |M (v - v_hat)|_2 + newton_tol |m|_2) <= residual_rtol
+
+(all norms over free DOFs; ``|m|_2`` the norm of the mass vector, so that a state at rest
+with ``F = 0`` is measured against the residual of a velocity error of ``newton_tol``). On
+converged stages of the test and benchmark scenes ``rho`` is 1e-16 ... 4e-6; on the false
+convergences of a 1 kg pendulum at ``h = 1e6 s`` it is 0.05 ... 1 (docs/robustness.md).
+
+Linear solves. Each result is checked (``LinearSolveResult.converged``): a solve that missed
+its criterion after the solver's own refinement and fallback is counted in
+``StepStats.linear_failures`` with its reason; a Newton stage may still use it as a search
+direction (the line search and the stopping rule judge the outcome), but the step is then
+not ``ok``. A non-finite solution ends the step with :class:`~springsim.errors.SolverError`.
 """
 
 from __future__ import annotations
 
 import time
-import warnings
 
 import numpy as np
 
@@ -26,19 +44,15 @@ from ..assembly import SystemAssembler
 from ..errors import SceneError, SolverError
 from ..forces import JACOBIAN_MODES, eval_forces
 from ..linsolve import make_linear_solver
-from ._base import Integrator, StepStats
+from ._base import PRECISION_LOSS_LIMIT, Integrator, StepStats
 
-__all__ = ["ImplicitIntegrator", "NewtonConvergenceWarning"]
+__all__ = ["ImplicitIntegrator"]
 
 
 def _check_count(field: str, value) -> None:
     """A SceneError naming ``field`` unless ``value`` is an integer >= 1."""
     if int(value) != value or value < 1:
         raise SceneError(field, f"must be an integer >= 1, got {value}")
-
-
-class NewtonConvergenceWarning(RuntimeWarning):
-    """Newton stopped at its iteration limit without meeting the tolerance."""
 
 
 class ImplicitIntegrator(Integrator):
@@ -53,37 +67,39 @@ class ImplicitIntegrator(Integrator):
         Jacobian mode; default ``spd`` for solvers that need SPD matrices at this size
         (:meth:`~springsim.linsolve.LinearSolver.needs_spd_for`), else ``exact``.
     newton_tol : float
-        Stop when ``|dv|_2 < newton_tol`` [m/s] (seed: 1e-5).
+        Update tolerance: a stage may stop when ``|dv|_2 < newton_tol`` [m/s] (seed: 1e-5).
     newton_maxiter : int or None
         Iteration limit; default the class's ``default_newton_maxiter``: the seed's 5 for
-        implicit Euler, 50 for BDF2 and TR-BDF2. These retake a step whose stage did not
-        converge with implicit Euler, so their limit must let Newton finish: on the 16 x 16
-        benchmark cloth at h = 1/60 s (0.5 s) 5 iterations leave errors of 0.045 m (BDF2)
-        and 0.034 m (TR-BDF2), 20 give 0.020 m and 0.0057 m in less CPU time; on the 64 x 64
-        issue-7 cloth (1.17 s) BDF2 with 20 misses the limit on 4 of 70 steps and ends
-        0.086 m off, with 50 on none and 0.018 m off (docs/accuracy.md).
+        implicit Euler, 50 for BDF2 and TR-BDF2, which retake a step whose stage did not
+        converge with implicit Euler and so must let Newton finish (docs/accuracy.md).
+    residual_rtol : float
+        Residual tolerance of the stopping rule (module docstring), default 1e-3.
     on_nonconvergence : {"warn", "raise", "ignore"}
-        What to do when Newton hits its limit.
+        What happens to a step that is not ``ok`` (Newton missed its limit, a linear solve
+        failed, the matrix lost the masses): ``"warn"``: the drivers warn once per run;
+        ``"raise"``: :class:`~springsim.errors.SolverError` at once; ``"ignore"``: recorded in
+        :class:`StepStats` only.
     line_search : bool
         Backtrack the Newton update (halving, down to ``min_step``) until the residual
         norm decreases (Armijo). Full steps are taken near the solution, so quadratic
         convergence is kept; far from it (stiff cloth at large ``h``) plain Newton
         diverges. Only used when Newton runs to convergence (``converge=True``), so
         linearized implicit Euler is seed eq. 3 exactly.
+    min_step : float
+        Smallest line-search step.
     solver_options : dict, optional
         Passed to the linear solver's constructor (e.g. ``{"rtol": 1e-6}``).
     escalate_jacobian : bool
         When Newton with the ``spd`` or ``symmetric`` Jacobian reaches its limit, continue the
         stage from its last iterate with the ``exact`` Jacobian (up to the limit again) before
         reporting non-convergence; counted in ``StepStats.extra["jacobian_escalations"]``.
-        The projected matrices only slow Newton to linear convergence where they differ from
-        the true Jacobian (compressed springs), which is where it misses its limit: TR-BDF2
-        at h = 1/60 s on the 64 x 64 issue-7 cloth with ``auto`` (``spd``, AMG-CG) missed it on
-        3 of 70 steps, retook them as implicit Euler and ended 0.075 m off against 0.013 m
-        with the exact Jacobian (docs/accuracy.md). Only stages that run Newton to
-        convergence escalate, so linearized implicit Euler (one plain iteration) is unaffected.
+        The projected matrices slow Newton to linear convergence where they differ from the
+        true Jacobian (compressed springs), which is where it misses its limit. Only stages
+        that run Newton to convergence escalate, so linearized implicit Euler is unaffected.
     escalate_after : int or None
         Iterations with the projected Jacobian before escalating (default: the Newton limit).
+    terms : list of ForceTerm, optional
+        Force terms (default: those the model uses).
     """
 
     implicit = True
@@ -91,9 +107,9 @@ class ImplicitIntegrator(Integrator):
     default_newton_maxiter = 5
 
     def __init__(self, model, *, solver="direct", jacobian: str | None = None, newton_tol: float = 1e-5,
-                 newton_maxiter: int | None = None, on_nonconvergence: str = "warn", solver_options: dict | None = None,
-                 line_search: bool = True, min_step: float = 1.0 / 64, escalate_jacobian: bool = True,
-                 escalate_after: int | None = None, terms=None):
+                 newton_maxiter: int | None = None, residual_rtol: float = 1e-3, on_nonconvergence: str = "warn",
+                 solver_options: dict | None = None, line_search: bool = True, min_step: float = 1.0 / 64,
+                 escalate_jacobian: bool = True, escalate_after: int | None = None, terms=None):
         super().__init__(model, terms=terms)
         self.solver = make_linear_solver(solver, **(solver_options or {}))
         if jacobian is None:
@@ -102,6 +118,8 @@ class ImplicitIntegrator(Integrator):
             raise SceneError("solver.jacobian", f"must be one of {', '.join(JACOBIAN_MODES)}, got {jacobian!r}")
         if not newton_tol > 0:
             raise SceneError("solver.newton_tol", f"must be > 0, got {newton_tol}")
+        if not residual_rtol > 0:
+            raise SceneError("solver.residual_rtol", f"must be > 0, got {residual_rtol}")
         if newton_maxiter is None:
             newton_maxiter = self.default_newton_maxiter
         _check_count("solver.newton_maxiter", newton_maxiter)
@@ -110,6 +128,7 @@ class ImplicitIntegrator(Integrator):
         self.jacobian = jacobian
         self.newton_tol = float(newton_tol)
         self.newton_maxiter = int(newton_maxiter)
+        self.residual_rtol = float(residual_rtol)
         self.on_nonconvergence = on_nonconvergence
         self.line_search = bool(line_search)
         self.min_step = float(min_step)
@@ -119,10 +138,16 @@ class ImplicitIntegrator(Integrator):
         self.escalate_after = None if escalate_after is None else int(escalate_after)
         self.assembler = SystemAssembler(model, self.terms)
         self._mass = model.particle_mass[:, None]
+        # floor of the residual scale: the residual of a velocity error of newton_tol in every DOF
+        self._mass_norm = float(np.sqrt(3.0) * np.linalg.norm(model.particle_mass[self.free]))
         self._warm: np.ndarray | None = None
 
     def reset(self):
+        super().reset()
         self._warm = None
+
+    def blowup_hint(self) -> str:
+        return "try a smaller time step"
 
     # -- the Newton stage solver -----------------------------------------------------------
     def solve_stage(self, q_hat: np.ndarray, v_hat: np.ndarray, c: float, v0: np.ndarray, stats: StepStats,
@@ -135,7 +160,7 @@ class ImplicitIntegrator(Integrator):
         c : float
             Stage coefficient [s].
         stats : StepStats
-            Accumulates iterations, times and norms.
+            Accumulates iterations, times, norms and failures.
         maxiter : int, optional
             Iteration limit (default ``newton_maxiter``); 1 gives the linearized method.
         converge : bool
@@ -145,39 +170,51 @@ class ImplicitIntegrator(Integrator):
         Returns
         -------
         q, v : ndarray (N, 3)
+        ok : bool
+            Whether the stage converged (when ``converge``) with every linear solve meeting its
+            criterion on well-conditioned matrices; the reasons otherwise are in ``stats.failures``.
         """
         maxiter = self.newton_maxiter if maxiter is None else maxiter
+        failures0 = stats.linear_failures
         v = np.array(v0, dtype=np.float64)
         v[self.fixed] = 0.0
         escalate = converge and self.escalate_jacobian and self.jacobian != "exact"
         first = min(maxiter, self.escalate_after) if escalate and self.escalate_after is not None else maxiter
-        q, v, step, rnorm, converged = self._newton(q_hat, v_hat, c, v, stats, first, converge, self.jacobian)
+        q, v, step, rnorm, ratio, converged = self._newton(q_hat, v_hat, c, v, stats, first, converge, self.jacobian)
         if escalate and not converged and np.isfinite(rnorm):  # a non-finite v makes rnorm non-finite
             # the projected Jacobian slows Newton to linear convergence where it differs from the
             # exact one (compressed springs); finish the stage with the exact Jacobian
             stats.extra["jacobian_escalations"] = stats.extra.get("jacobian_escalations", 0) + 1
-            q, v, step, rnorm, converged = self._newton(q_hat, v_hat, c, v, stats, maxiter, converge, "exact")
+            q, v, step, rnorm, ratio, converged = self._newton(q_hat, v_hat, c, v, stats, maxiter, converge, "exact")
         stats.newton_step_norm = step
         stats.residual_norm = rnorm
+        stats.residual_ratio = ratio
+        ok = stats.linear_failures == failures0 and not stats.ill_conditioned
         if converge:
-            stats.newton_converged = converged and bool(np.isfinite(rnorm))
-            if not stats.newton_converged:
-                self._report_nonconvergence(stats, maxiter)
-        return q, v
+            converged = converged and bool(np.isfinite(rnorm))
+            if not converged:
+                stats.newton_converged = False
+                stats.fail(f"Newton did not converge in {maxiter} iterations (|dv| {step:.1e} m/s, tol "
+                           f"{self.newton_tol:g}; residual ratio {ratio:.1e}, tol {self.residual_rtol:g})")
+            ok = ok and converged
+        if stats.ill_conditioned:
+            stats.fail(f"ill-conditioned matrix: it holds the masses only to {stats.precision_loss:.1e} "
+                       f"(limit {PRECISION_LOSS_LIMIT:g}); reduce the step or soften the stiffest pairs")
+        return q, v, ok
 
     def _newton(self, q_hat, v_hat, c, v, stats, maxiter, converge, mode):
         """Newton iterations of :meth:`solve_stage` from ``v`` with the Jacobian ``mode``:
-        ``(q, v, |dv|, |R|, converged)``."""
+        ``(q, v, |dv|, |R|, rho, converged)``."""
         asm = self.assembler
         f = np.empty_like(v)
         q = q_hat + c * v
-        R = self._residual(q, v, v_hat, c, f, stats)
-        rnorm = float(np.linalg.norm(asm.gather(R)))
+        R, rnorm, ratio = self._residual(q, v, v_hat, c, f, stats)
         converged = False
         step = 0.0
         for it in range(maxiter):
             A = asm.assemble(q, v, c * c, c, mode)
             stats.assembly_s += asm.last_time_s
+            stats.precision_loss = max(stats.precision_loss, asm.precision_loss(A))
             dv = self._linear_solve(A, asm.gather(R), stats, first=(it == 0)).x
             step = float(np.linalg.norm(dv))
             stats.newton_iterations += 1
@@ -188,27 +225,32 @@ class ImplicitIntegrator(Integrator):
                 v_try = v.copy()
                 asm.scatter_add(v_try, dv, alpha)
                 q_try = q_hat + c * v_try
-                R_try = self._residual(q_try, v_try, v_hat, c, f, stats)
-                rn_try = float(np.linalg.norm(asm.gather(R_try)))
+                R_try, rn_try, ratio_try = self._residual(q_try, v_try, v_hat, c, f, stats)
                 if (not (converge and self.line_search) or rn_try <= (1.0 - 1e-4 * alpha) * rnorm
                         or alpha <= self.min_step or not np.isfinite(rnorm)):
                     break
                 alpha *= 0.5
             stats.extra["min_line_search_step"] = min(alpha, stats.extra.get("min_line_search_step", 1.0))
-            v, q, R, rnorm = v_try, q_try, R_try, rn_try
+            v, q, R, rnorm, ratio = v_try, q_try, R_try, rn_try, ratio_try
             if not np.isfinite(step):
                 break
-            if converge and step < self.newton_tol:
+            if converge and step < self.newton_tol and ratio <= self.residual_rtol:
                 converged = True
                 break
-        return q, v, step, rnorm, converged
+        return q, v, step, rnorm, ratio, converged
 
     def _residual(self, q, v, v_hat, c, f, stats):
+        """``R = c F(q, v) - M (v - v_hat)`` (N, 3), ``|R|_2`` and ``rho`` over free DOFs (module docstring)."""
         t0 = time.perf_counter()
         eval_forces(self.terms, q, v, out=f)
+        free = self.free
+        cf = c * f[free]
+        mdv = self._mass[free] * (v[free] - v_hat[free])
         R = c * f - self._mass * (v - v_hat)
+        rnorm = float(np.linalg.norm(cf - mdv))
+        scale = float(np.linalg.norm(cf)) + float(np.linalg.norm(mdv)) + self.newton_tol * self._mass_norm
         stats.force_s += time.perf_counter() - t0
-        return R
+        return R, rnorm, (rnorm / scale if scale > 0 else 0.0)
 
     def _linear_solve(self, A, b, stats, first: bool):
         x0 = self._warm if (first and self._warm is not None and self._warm.shape == b.shape) else None
@@ -220,19 +262,39 @@ class ImplicitIntegrator(Integrator):
         if res.fallback:
             stats.fallbacks.append(f"{res.method}: {res.fallback}")
         if not np.all(np.isfinite(res.x)):
-            raise SolverError(f"linear solver {res.method!r} failed: {res.fallback or 'non-finite solution'}")
+            raise SolverError(f"linear solver {res.method!r} failed: {res.failure or 'non-finite solution'}")
+        if not res.converged:
+            stats.linear_failures += 1
+            stats.fail(f"linear solve ({res.method}) failed: {res.failure}")
         if first:
             self._warm = res.x
         return res
 
-    def _report_nonconvergence(self, stats, maxiter):
-        if self.on_nonconvergence == "raise":
-            raise SolverError(f"Newton did not converge in {maxiter} iterations at dt={stats.dt:g}: "
-                              f"|dv|={stats.newton_step_norm:.3e} (tol {self.newton_tol:g}), "
-                              f"residual {stats.residual_norm:.3e}")
-        if self.on_nonconvergence == "warn":
-            # a constant message, so the default warning filter reports it once per run;
-            # the numbers are in StepStats (newton_converged, newton_step_norm, residual_norm)
-            warnings.warn(f"{type(self).name}: Newton stopped at its iteration limit ({maxiter}) without "
-                          f"meeting |dv| < {self.newton_tol:g}; see StepStats.newton_converged",
-                          NewtonConvergenceWarning, stacklevel=4)
+    def implicit_euler_stage(self, q, v, h: float, a_n, stats: StepStats):
+        """One implicit Euler step from ``(q, v)`` as a stage: ``(q1, v1, ok, error_estimate)``.
+
+        ``a_n`` is the acceleration at the start [m/s^2]; ``error_estimate = (err_q, err_v)`` is
+        half the difference to explicit Euler, implicit Euler's local error to leading order.
+        Used as the start step of multistep methods and to retake failed steps.
+        """
+        q1, v1, ok = self.solve_stage(q, v, h, v, stats)
+        q1[self.fixed] = q[self.fixed]
+        return q1, v1, ok, (0.5 * (q1 - (q + h * v)), 0.5 * (v1 - (v + h * a_n)))
+
+    def retake_implicit_euler(self, q, v, h: float, a_n, stats: StepStats, why: str):
+        """:meth:`implicit_euler_stage` after a higher-order attempt at the step failed (order reduction).
+
+        An unconverged BDF2 or TR-BDF2 stage is amplified by the method (on a ke = 1e7 cloth the
+        energy grew from 0 to 1e7 ... 1e9 J), while L-stable implicit Euler damps what it cannot
+        resolve. The failed attempt's reasons move to ``stats.extra["retaken"]`` (``why`` names it)
+        and ``stats.extra["order_reduced"]`` is set.
+        """
+        stats.retake(f"{why}: {'; '.join(stats.failures) or 'failed'}; retaken as implicit Euler")
+        stats.extra["order_reduced"] = True
+        return self.implicit_euler_stage(q, v, h, a_n, stats)
+
+    def check_step(self, stats: StepStats) -> StepStats:
+        """Apply ``on_nonconvergence="raise"`` to a finished step; returns ``stats``."""
+        if self.on_nonconvergence == "raise" and not stats.ok:
+            raise SolverError(f"{self.name} step at dt={stats.dt:g} failed: {'; '.join(stats.failures)}")
+        return stats

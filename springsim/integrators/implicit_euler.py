@@ -2,8 +2,9 @@
 
 ``qd^{n+1} = qd^n + h M^-1 F(q^{n+1}, qd^{n+1})``, ``q^{n+1} = q^n + h qd^{n+1}``; each
 Newton iteration solves ``[M - h^2 dF/dq - h dF/dqd] dqd = -M (qd_i - qd^n) + h F(q^n + h qd_i, qd_i)``
-starting from ``qd_0 = qd^n`` and stops when ``|dqd|_2 < newton_tol`` or after
-``newton_maxiter`` iterations. Order 1, L-stable (strongly damped at large ``h``).
+starting from ``qd_0 = qd^n`` and stops when ``|dqd|_2 < newton_tol`` (and the residual
+test of :class:`~springsim.integrators.ImplicitIntegrator` holds) or after ``newton_maxiter``
+iterations. Order 1, L-stable (strongly damped at large ``h``).
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ class IntegratorImplicitEuler(ImplicitIntegrator):
     def step(self, state_in, state_out, dt):
         stats = StepStats(dt)
         q, qd = state_in.particle_q, state_in.particle_qd
-        q1, v1 = self.solve_stage(q, qd, dt, qd, stats)
+        q1, v1, _ = self.solve_stage(q, qd, dt, qd, stats)
         state_out.particle_q[...] = q1
         state_out.particle_qd[...] = v1
-        return stats
+        return self.check_step(stats)

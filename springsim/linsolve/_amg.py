@@ -58,6 +58,9 @@ import time
 
 import numpy as np
 
+#: Seed of NumPy's global random state during a pyamg setup (restored afterwards).
+_PYAMG_SEED = 20_240_611
+
 __all__ = ["AMGHierarchy", "AMGKrylovSolver", "BackwardBlockGaussSeidel", "rigid_body_modes", "translation_modes"]
 
 
@@ -210,6 +213,17 @@ class AMGHierarchy:
         return self._precond, time.perf_counter() - t0, True
 
     def _build(self, A, key=None):
+        # pyamg's setup draws from NumPy's global random state (the spectral-radius estimate of its
+        # prolongation smoother): run it from a fixed seed, so that the hierarchy (and the solve) is
+        # the same on every run, and give the caller's global state back untouched
+        state = np.random.get_state()
+        np.random.seed(_PYAMG_SEED)
+        try:
+            self._build_seeded(A, key)
+        finally:
+            np.random.set_state(state)
+
+    def _build_seeded(self, A, key):
         import pyamg
 
         # a snapshot: the assembler updates its matrix in place, and a hierarchy whose finest

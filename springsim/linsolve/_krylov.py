@@ -1,5 +1,5 @@
 """Shared machinery of the iterative solvers: a PCG with breakdown detection, the
-warm-start check and the fallback to the direct solver.
+warm-start check and the fallback solver.
 
 Symbols: ``A`` the system matrix (3F, 3F), ``b`` the right-hand side (3F,), ``M^-1``
 the preconditioner, ``r = b - A x`` the residual, ``z = M^-1 r``, ``p`` the search
@@ -9,17 +9,12 @@ direction. All tolerances are on the relative residual ``|b - A x|_2 / |b|_2``.
 from __future__ import annotations
 
 import time
-import warnings
 
 import numpy as np
 
 from ._base import LinearSolver, LinearSolveResult
 
-__all__ = ["IterativeSolver", "KrylovInfo", "LinearSolverFallbackWarning", "pcg"]
-
-
-class LinearSolverFallbackWarning(RuntimeWarning):
-    """An iterative solver broke down and the direct solver answered instead."""
+__all__ = ["IterativeSolver", "KrylovInfo", "pcg"]
 
 
 class KrylovInfo:
@@ -136,22 +131,29 @@ class IterativeSolver(LinearSolver):
         Absolute residual floor.
     maxiter : int or None
         Krylov iteration limit (default: solver-specific).
-    fallback : {"direct", "none"}
-        On breakdown, ``"direct"`` re-solves with SuperLU and warns
-        (:class:`LinearSolverFallbackWarning`); ``"none"`` returns the last iterate with
-        ``converged=False`` and the reason in ``fallback``.
+    fallback : LinearSolver, "direct", "none" or None
+        Solver that answers when the Krylov method breaks down or misses its tolerance
+        (default ``"direct"``: a :class:`~springsim.linsolve.LinearSolverDirect`). Its result
+        is returned with ``method = "<name>-><fallback>"`` and the breakdown in ``fallback``.
+        ``"none"``/None: the last iterate is returned with ``converged=False`` and the reason
+        in ``failure``.
     warm_start : bool
         Use the caller's ``x0`` when its residual is smaller than ``|b|``.
     """
 
     def __init__(self, *, rtol: float = 1e-6, atol: float = 0.0, maxiter: int | None = None,
-                 fallback: str = "direct", warm_start: bool = True):
+                 fallback: LinearSolver | str | None = "direct", warm_start: bool = True):
         super().__init__(rtol=rtol, atol=atol, maxiter=maxiter)
-        if fallback not in ("direct", "none"):
-            raise ValueError(f"fallback must be 'direct' or 'none', got {fallback!r}")
+        if fallback == "direct":
+            from .direct import LinearSolverDirect
+
+            fallback = LinearSolverDirect()
+        elif fallback == "none":
+            fallback = None
+        if fallback is not None and not isinstance(fallback, LinearSolver):
+            raise ValueError(f"fallback must be a LinearSolver, 'direct' or 'none', got {fallback!r}")
         self.fallback = fallback
         self.warm_start = bool(warm_start)
-        self._direct = None
 
     def _initial_guess(self, A, b, x0):
         """``x0`` if it is a better start than zero (``|b - A x0| < |b|``), else None."""
@@ -165,25 +167,19 @@ class IterativeSolver(LinearSolver):
         details = dict(details, breakdown=info.breakdown)
         if info.breakdown is None:
             return LinearSolveResult(x, True, info.iterations, info.residual, self.name, setup_s, solve_s,
-                                     None, details)
+                                     info=details)
         reason = f"{info.breakdown} after {info.iterations} iterations (relative residual {info.residual:.1e})"
-        if self.fallback == "none":
+        if self.fallback is None:
             return LinearSolveResult(x, False, info.iterations, info.residual, self.name, setup_s, solve_s,
-                                     reason, details)
-        from .direct import LinearSolverDirect
-
-        warnings.warn(f"{self.name}: {info.breakdown}; falling back to the direct solver",
-                      LinearSolverFallbackWarning, stacklevel=4)
-        if self._direct is None:
-            self._direct = LinearSolverDirect(rtol=self.rtol)
+                                     failure=reason, info=details)
         t0 = time.perf_counter()
-        d = self._direct.solve(A, b)
-        details.update(direct=d.info, krylov_residual=info.residual)
-        return LinearSolveResult(d.x, d.converged, info.iterations, d.residual, f"{self.name}->direct",
+        d = self.fallback._solve(A, b, None)  # A is already wrapped, and the thread policy applied, by solve()
+        details.update(fallback_info=d.info, krylov_residual=info.residual)
+        return LinearSolveResult(d.x, d.converged, info.iterations, d.residual, f"{self.name}->{d.method}",
                                  setup_s + d.setup_s, solve_s + (time.perf_counter() - t0) - d.setup_s,
-                                 reason if d.fallback is None else f"{reason}; direct: {d.fallback}", details)
+                                 failure=d.failure, fallback=f"{self.name}: {reason}",
+                                 backward_error=d.backward_error, info=details)
 
     def _limit(self, default: int) -> int:
         """The iteration limit: ``maxiter`` if given, else ``default``."""
         return int(self.maxiter) if self.maxiter is not None else int(default)
-

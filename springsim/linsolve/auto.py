@@ -66,8 +66,10 @@ class LinearSolverAuto(LinearSolver):
                  direct_max_dofs: int = DIRECT_MAX_DOFS, fallback: str = "direct"):
         super().__init__(rtol=rtol, atol=atol, maxiter=maxiter)
         self.direct_max_dofs = int(direct_max_dofs)
+        #: Name of the solver used for the last system (None before the first solve).
+        self.last_choice: str | None = None
         self._solvers = {
-            "direct": LinearSolverDirect(rtol=self.rtol),
+            "direct": LinearSolverDirect(),
             "amg-cg": LinearSolverAMGCG(rtol=self.rtol, atol=self.atol, maxiter=maxiter, fallback=fallback),
             "amg-gmres": LinearSolverAMGGMRES(rtol=self.rtol, atol=self.atol, maxiter=maxiter, fallback=fallback),
         }
@@ -82,7 +84,7 @@ class LinearSolverAuto(LinearSolver):
         return "amg-cg" if A.symmetric else "amg-gmres"
 
     def _solve(self, A, b, x0):
-        choice = self.choose(A)
+        choice = self.last_choice = self.choose(A)
         res = self._solvers[choice]._solve(A, b, x0)  # A is already wrapped by solve()
         res.method = f"auto:{res.method}"
         res.info = dict(res.info, auto_choice=choice)

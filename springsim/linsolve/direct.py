@@ -1,67 +1,130 @@
-"""``direct``: scipy's SuperLU with a symmetric fill-reducing ordering.
+"""``direct``: scipy's SuperLU with a symmetric fill-reducing ordering, checked by its backward error.
 
-The implicit system's pattern is structurally symmetric, so SuperLU orders it
-by minimum degree on ``A^T + A`` (``MMD_AT_PLUS_A``) in symmetric mode (diagonal
-pivots preferred). Measured on the benchmark cloth: n = 128 factors in 1.3 s with
-8.5M nonzeros in L+U, against 4.3 s and 15.7M for the default COLAMD.
+The implicit system's pattern is structurally symmetric, so SuperLU orders it by
+minimum degree on ``A^T + A`` (``MMD_AT_PLUS_A``) in symmetric mode, taking diagonal
+pivots (``diag_pivot_thresh = 0``): far less fill than the default COLAMD ordering with
+partial pivoting on these matrices (docs/solvers.md). Diagonal pivoting is not
+backward stable for every matrix (an indefinite ``exact``-mode Jacobian can have tiny
+pivots), so every solution is checked:
+
+1. solve with the factors and compute the normwise backward error ``eta``
+   (:func:`~springsim.linsolve._base.backward_error`);
+2. while ``eta > backward_tol``: iterative refinement with the same factors,
+   ``x <- x + (LU)^-1 (b - A x)``, at most ``refine`` steps (one step in working
+   precision makes Gaussian elimination backward stable in practice; Skeel 1980,
+   Higham 2002, sec. 12.2);
+3. if that does not reach ``backward_tol``: factor again with threshold partial pivoting
+   (``diag_pivot_thresh = 1``, COLAMD ordering) and refine again;
+4. if that fails too (the matrix is singular to working precision): ``converged=False``
+   with the reason in ``failure``.
 
 What is reused across steps is the conversion: the assembler's BSR data reaches
 CSC through one precomputed gather (:meth:`SystemMatrix.tocsc`). SuperLU exposes
-no reusable symbolic factorisation (re-factoring a pre-permuted matrix with
-``NATURAL`` was measured 80x slower, because its postorder is lost), so each
-call factors afresh.
+no reusable symbolic factorisation, so each call factors afresh.
 """
 
 from __future__ import annotations
 
 import time
-import warnings
 
 import numpy as np
 import scipy.sparse.linalg as spla
 
-from ._base import LinearSolver, LinearSolveResult, relative_residual
+from ._base import BACKWARD_TOL, LinearSolver, LinearSolveResult, backward_error, inf_norm, relative_residual
 
-__all__ = ["LinearSolverDirect"]
+__all__ = ["LinearSolverDirect", "refine"]
+
+
+def refine(A, solve, b: np.ndarray, x: np.ndarray, *, A_norm: float, tol: float, steps: int):
+    """Fixed-precision iterative refinement of ``x`` for ``A x = b`` with an approximate inverse ``solve``.
+
+    Stops when the normwise backward error is ``<= tol``, after ``steps`` corrections, or
+    when a correction does not reduce it. Returns ``(x, eta, corrections)``.
+    """
+    eta = backward_error(A, x, b, A_norm)
+    done = 0
+    while eta > tol and done < steps and np.isfinite(eta):
+        x_new = x + solve(b - A @ x)
+        eta_new = backward_error(A, x_new, b, A_norm)
+        if not eta_new < eta:
+            break
+        x, eta = x_new, eta_new
+        done += 1
+    return x, eta, done
 
 
 class LinearSolverDirect(LinearSolver):
-    """Sparse LU (SuperLU, ``MMD_AT_PLUS_A``); exact up to round-off for any nonsingular ``A``.
+    """Sparse LU (SuperLU) whose solutions are checked and refined to a small backward error.
 
     Parameters
     ----------
     permc_spec : str
-        SuperLU column ordering (default ``"MMD_AT_PLUS_A"``).
+        SuperLU column ordering of the first (diagonal-pivot) factorisation (default
+        ``"MMD_AT_PLUS_A"``).
+    backward_tol : float
+        Normwise backward error a solution must reach (default
+        :data:`~springsim.linsolve._base.BACKWARD_TOL`).
+    refine : int
+        Refinement steps allowed per factorisation (default 3).
+    rtol, atol, maxiter
+        Accepted for a uniform interface; unused (a direct solve is judged by its backward
+        error, see :mod:`springsim.linsolve._base`).
     """
 
     name = "direct"
 
-    def __init__(self, *, permc_spec: str = "MMD_AT_PLUS_A", **kw):
+    def __init__(self, *, permc_spec: str = "MMD_AT_PLUS_A", backward_tol: float = BACKWARD_TOL, refine: int = 3,
+                 **kw):
         super().__init__(**kw)
+        if not backward_tol > 0:
+            raise ValueError(f"backward_tol must be > 0, got {backward_tol}")
+        if int(refine) != refine or refine < 0:
+            raise ValueError(f"refine must be an integer >= 0, got {refine}")
         self.permc_spec = permc_spec
+        self.backward_tol = float(backward_tol)
+        self.refine = int(refine)
+
+    def _factor(self, csc, pivoting: bool):
+        """SuperLU factors, or the error message when SuperLU finds the matrix exactly singular."""
+        try:
+            if pivoting:
+                return spla.splu(csc, permc_spec="COLAMD", diag_pivot_thresh=1.0), None
+            return spla.splu(csc, permc_spec=self.permc_spec, diag_pivot_thresh=0.0,
+                             options=dict(SymmetricMode=True)), None
+        except RuntimeError as e:  # "Factor is exactly singular"
+            return None, f"singular matrix ({e})"
 
     def _solve(self, A, b, x0):
         t0 = time.perf_counter()
         csc = A.tocsc()
-        err = None
-        lu = None
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("error", spla.MatrixRankWarning)
-                lu = spla.splu(csc, permc_spec=self.permc_spec, diag_pivot_thresh=0.0,
-                               options=dict(SymmetricMode=True))
+        A_norm = inf_norm(csc)
+        setup_s = solve_s = 0.0
+        x, eta, failure = np.full_like(b, np.nan), float("inf"), None
+        info: dict = {"refinements": 0, "pivoting": False}
+        for pivoting in (False, True):
             t1 = time.perf_counter()
-            x = lu.solve(b)
-            ok = bool(np.all(np.isfinite(x)))
-        except (RuntimeError, spla.MatrixRankWarning) as e:  # exactly singular
-            t1 = time.perf_counter()
-            x, ok, err = np.full_like(b, np.nan), False, f"singular matrix ({e})"
-        t2 = time.perf_counter()
-        res = relative_residual(csc, x, b) if ok else float("inf")
-        if ok and not res <= max(1e-8, self.rtol):
-            ok, err = False, f"inaccurate factorisation (relative residual {res:.1e})"
-        # ``lu.nnz`` is nnz(L) + nnz(U) without building L and U as sparse matrices (``lu.L``/``lu.U``
-        # copy the factors: 3.8 ms of a 26 ms factorisation at n = 32)
-        info = {"nnz_LU": int(lu.nnz)} if lu is not None else {}
-        return LinearSolveResult(x, ok, 0, res, self.name, setup_s=t1 - t0, solve_s=t2 - t1,
-                                 fallback=err, info=info)
+            lu, err = self._factor(csc, pivoting)
+            t2 = time.perf_counter()
+            setup_s += t2 - t1
+            if lu is None:
+                failure = err
+            else:
+                # ``lu.nnz`` is nnz(L) + nnz(U) without building L and U as sparse matrices
+                info["nnz_LU"] = int(lu.nnz)
+                info["pivoting"] = pivoting
+                x_try, eta_try, done = refine(csc, lu.solve, b, lu.solve(b), A_norm=A_norm, tol=self.backward_tol,
+                                              steps=self.refine)
+                info["refinements"] += done
+                if eta_try < eta:
+                    x, eta = x_try, eta_try
+                failure = None if eta <= self.backward_tol else (
+                    f"backward error {eta:.1e} > {self.backward_tol:.0e} after {info['refinements']} refinement "
+                    f"step(s){' and partial pivoting' if pivoting else ''}")
+            solve_s += time.perf_counter() - t2
+            if failure is None:
+                break
+        converged = failure is None
+        res = relative_residual(csc, x, b) if np.all(np.isfinite(x)) else float("inf")
+        setup_s += (time.perf_counter() - t0) - setup_s - solve_s  # the conversion counts as setup
+        return LinearSolveResult(x, converged, 0, res, self.name, setup_s=setup_s, solve_s=solve_s,
+                                 failure=failure, backward_error=eta, info=info)

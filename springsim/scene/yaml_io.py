@@ -8,7 +8,7 @@ The format is documented key by key in ``docs/scene-format.md``. In short::
     springs:
       - {particle_ids: [0, 1], stiffness: 100.0, damping: 0.5, rest_length: 0.2}
     gravitational:
-      - {particle_ids: [0, 1], G: 100.0}
+      - {particle_ids: [0, 1], G: 100.0, softening: 0.01}
     cloth: {nx: 64, ny: 64, size: [1, 1], total_mass: 1.0, ke: 1.0e4, pin: edge}
     benchmark_cloth: {n: 64, kd: 0}
     plot: {particle_id: 1, dof: 2, y_range: [-1, 1]}
@@ -55,7 +55,7 @@ _SOLVER_KEYS = ("type", "timestep", "gravity", "up_axis", "steps", "duration", "
 _POSITIVE_SOLVER_KEYS = ("linear_rtol", "newton_tol", "time_rtol", "time_atol", "max_step")
 _PARTICLE_KEYS = ("pos", "vel", "mass", "fixed", "radius", "drag")
 _SPRING_KEYS = ("particle_ids", "stiffness", "damping", "rest_length")
-_GRAV_KEYS = ("particle_ids", "G")
+_GRAV_KEYS = ("particle_ids", "G", "softening")
 _PLOT_KEYS = ("particle_id", "dof", "y_range")
 _CLOTH_KEYS = ("nx", "ny", "origin", "spacing", "size", "plane", "mass", "total_mass", "drag", "ke", "kd",
                "ke_y", "kd_y", "ke_shear", "kd_shear", "bending", "ke_bend", "kd_bend", "pin")
@@ -396,7 +396,7 @@ def _parse_pairs(group: str, items: list, n: int, keys: tuple[str, ...], value_k
         for key, col in cols.items():
             if key in s:
                 x = s[key]
-                if x is None and key == "rest_length":
+                if x is None and key in ("rest_length", "softening"):  # null: the default
                     continue
                 if not _is_num(x):
                     _number(f"{group}[{k}].{key}", x)
@@ -526,7 +526,7 @@ def parse_scene(doc, *, source: str = "<string>") -> Scene:
     springs = _parse_pairs("springs", _item_list("springs", doc.get("springs")), n, _SPRING_KEYS,
                            {"stiffness": (True, 0.0), "damping": (False, 0.0), "rest_length": (False, math.nan)})
     gravs = _parse_pairs("gravitational", _item_list("gravitational", doc.get("gravitational")), n, _GRAV_KEYS,
-                         {"G": (True, 0.0)})
+                         {"G": (True, 0.0), "softening": (False, math.nan)})
     plot = _parse_plot(doc["plot"], n) if doc.get("plot") is not None else None
 
     b = ModelBuilder(gravity=gravity, up_axis=up)
@@ -537,7 +537,7 @@ def parse_scene(doc, *, source: str = "<string>") -> Scene:
     if springs["ids"].shape[0]:
         b.add_springs(springs["ids"], springs["stiffness"], springs["damping"], springs["rest_length"])
     if gravs["ids"].shape[0]:
-        b.add_gravitationals(gravs["ids"], gravs["G"])
+        b.add_gravitationals(gravs["ids"], gravs["G"], gravs["softening"])
     blocks = []
     for kw in cloths:
         kw = dict(kw)

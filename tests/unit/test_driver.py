@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from springsim.builder import ModelBuilder
+from springsim.energy import EnergyBound
 from springsim.driver import SimulationInterrupted, Trajectory, save_npz_atomic, simulate
 from springsim.errors import SimulationError, SolverError, SpringsimError
 from springsim.integrators import Integrator, StepStats, make_integrator
@@ -50,27 +51,44 @@ class _FailAt(Integrator):
 
 
 def test_blowup_raises_with_finite_frames():
-    """Explicit Euler on a 1e8 N/m spring at h = 0.1 s blows up; the error names step and particle, frames stay finite."""
+    """Explicit Euler on a 1e8 N/m spring at h = 0.1 s blows up to inf; without the energy check the error names step
+    and particle when the state stops being finite, and the frames stay finite."""
     m = _stiff_spring()
     with pytest.raises(SimulationError) as ei:
-        simulate(m, make_integrator("explicit_euler", m), 0.1, 500)
+        simulate(m, make_integrator("explicit_euler", m), 0.1, 500, check_energy=False)
     e = ei.value
     assert e.step is not None and 1 < e.step < 500
-    assert f"step {e.step}" in str(e) and "particle 1" in str(e)
+    assert f"step {e.step}" in str(e) and "particle 1" in str(e) and "non-finite" in str(e)
     tr = e.trajectory
     assert isinstance(tr, Trajectory)
     assert tr.frame_count == e.step  # frames 0 .. step-1
     assert np.isfinite(tr.q).all() and np.isfinite(tr.qd).all()
     np.testing.assert_allclose(tr.t, np.arange(e.step) * 0.1)
-    assert len(tr.stats) == e.step
+    assert len(tr.stats) == e.step - 1  # the steps whose results were kept
     assert np.all(tr.q[:, 0] == 0.0)  # the fixed particle never moved, even as forces overflowed
+
+
+def test_energy_bound_stops_a_finite_blowup_early():
+    """The same run with the energy check (the default) stops as soon as the state holds more energy than the forces
+    can supply, long before anything overflows; the message says so and the kept frames are below the bound."""
+    m = _stiff_spring()
+    with pytest.raises(SimulationError) as late:
+        simulate(m, make_integrator("explicit_euler", m), 0.1, 500, check_energy=False)
+    with pytest.raises(SimulationError) as ei:
+        simulate(m, make_integrator("explicit_euler", m), 0.1, 500)
+    e = ei.value
+    assert 1 <= e.step < late.value.step and f"step {e.step}" in str(e)
+    assert "more than the forces can supply" in str(e) and "smaller time step" in str(e)
+    bound = EnergyBound(m, m.particle_q, m.particle_qd)
+    tr = e.trajectory
+    assert tr.frame_count == e.step and all(bound.exceeded(q, v) is None for q, v in zip(tr.q, tr.qd))
 
 
 def test_blowup_keeps_last_finite_state_between_frames():
     """With frame_every > 1 the last finite state before the blow-up is still kept."""
     m = _stiff_spring()
     with pytest.raises(SimulationError) as ei:
-        simulate(m, make_integrator("symplectic_euler", m), 0.1, 500, frame_every=7)
+        simulate(m, make_integrator("symplectic_euler", m), 0.1, 500, frame_every=7, check_energy=False)
     tr, k = ei.value.trajectory, ei.value.step
     assert tr.t[-1] == pytest.approx((k - 1) * 0.1)
     assert np.isfinite(tr.q).all() and np.isfinite(tr.qd).all()
@@ -81,7 +99,7 @@ def test_blowup_record_false_keeps_initial_and_last_finite():
     """With record=False a blow-up returns the initial and the last finite state."""
     m = _stiff_spring()
     with pytest.raises(SimulationError) as ei:
-        simulate(m, make_integrator("midpoint", m), 0.1, 500, record=False)
+        simulate(m, make_integrator("midpoint", m), 0.1, 500, record=False, check_energy=False)
     tr, k = ei.value.trajectory, ei.value.step
     np.testing.assert_allclose(tr.t, [0.0, (k - 1) * 0.1])
     assert np.isfinite(tr.q).all()
@@ -125,7 +143,7 @@ def test_interrupt_from_progress_returns_frames_so_far():
     with pytest.raises(SimulationInterrupted) as ei:
         simulate(m, make_integrator("symplectic_euler", m), 0.01, 20, frame_every=4, progress=progress)
     e = ei.value
-    assert isinstance(e, SimulationError) and e.step == 6
+    assert isinstance(e, KeyboardInterrupt) and not isinstance(e, SimulationError) and e.step == 6
     np.testing.assert_allclose(e.trajectory.t, [0.0, 0.04, 0.06])
     assert "interrupted after step 6 of 20" in str(e)
     ref = simulate(m, make_integrator("symplectic_euler", m), 0.01, 6)
@@ -141,16 +159,21 @@ def test_interrupt_inside_step_keeps_previous_frames():
 
 
 def test_driver_argument_validation():
-    """Bad dt, steps, frame_every or a non-finite initial state are rejected before stepping."""
+    """Bad dt, steps, frame_every or a non-finite initial state are rejected before stepping, naming the parameter:
+    ValueError for bad values, TypeError for wrong types."""
     m = _chain()
     integ = make_integrator("symplectic_euler", m)
-    for kw in (dict(dt=0.0, steps=1), dict(dt=np.nan, steps=1), dict(dt=0.1, steps=-1),
-               dict(dt=0.1, steps=1, frame_every=0), dict(dt=0.1, steps=1, frame_every=1.5)):
-        with pytest.raises(ValueError):
+    for kw, name in ((dict(dt=0.0, steps=1), "dt"), (dict(dt=np.nan, steps=1), "dt"), (dict(dt=0.1, steps=-1), "steps"),
+                     (dict(dt=0.1, steps=1, frame_every=0), "frame_every")):
+        with pytest.raises(ValueError, match=f"^{name} "):
+            simulate(m, integ, **kw)
+    for kw, name in ((dict(dt="0.1", steps=1), "dt"), (dict(dt=True, steps=1), "dt"), (dict(dt=0.1, steps=2.5), "steps"),
+                     (dict(dt=0.1, steps=1, frame_every=1.5), "frame_every")):
+        with pytest.raises(TypeError, match=f"^{name} "):
             simulate(m, integ, **kw)
     s = m.state()
     s.particle_q[2, 1] = np.inf
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="state.particle_q"):
         simulate(m, integ, 0.1, 1, state=s)
 
 

@@ -99,20 +99,36 @@ def test_implicit_euler_is_first_order(name):
 
 
 def test_nonconvergence_is_reported():
-    """Newton stopping at its limit warns (default) or raises (on_nonconvergence='raise'), never silently."""
-    from springsim.errors import SolverError
-    from springsim.integrators import NewtonConvergenceWarning
+    """A step whose Newton misses its limit is reported, never silently: in StepStats (ok False, the reason), by one
+    ConvergenceWarning per run from simulate (not one per step), or as SolverError with on_nonconvergence='raise'."""
+    import warnings
+
+    from springsim.driver import simulate
+    from springsim.errors import ConvergenceWarning, SimulationError, SolverError
 
     model = damped_chain()
-    s0, s1 = model.state(), model.state()
     integ = make_integrator("implicit_euler", model, solver="direct", newton_tol=1e-14, newton_maxiter=1)
-    with pytest.warns(NewtonConvergenceWarning):
-        st = integ.step(s0, s1, 0.05)
-    assert not st.newton_converged and st.newton_iterations == 1
+    st = integ.step(model.state(), model.state(), 0.05)
+    assert not st.ok and not st.newton_converged and st.newton_iterations == 1
+    assert st.failures and st.failures[0].startswith("Newton did not converge in 1 iterations")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        tr = simulate(model, integ, 0.05, 10)
+    assert sum(not s.ok for s in tr.stats) == 10 and tr.summary()["failed_steps"] == 10
+    conv = [w for w in caught if issubclass(w.category, ConvergenceWarning)]
+    assert len(conv) == 1 and "10 of 10 step(s)" in str(conv[0].message)
     integ = make_integrator("implicit_euler", model, solver="direct", newton_tol=1e-14, newton_maxiter=1,
                             on_nonconvergence="raise")
     with pytest.raises(SolverError, match="did not converge"):
-        integ.step(s0, s1, 0.05)
+        integ.step(model.state(), model.state(), 0.05)
+    with pytest.raises(SimulationError, match="step 1 .*did not converge") as err:
+        simulate(model, integ, 0.05, 10)
+    assert isinstance(err.value.__cause__, SolverError) and err.value.trajectory.frame_count == 1
+    quiet = make_integrator("implicit_euler", model, solver="direct", newton_tol=1e-14, newton_maxiter=1,
+                            on_nonconvergence="ignore")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert simulate(model, quiet, 0.05, 3).summary()["failed_steps"] == 3
 
 
 @pytest.mark.parametrize("name", ["implicit_euler", "bdf2", "tr_bdf2"])
