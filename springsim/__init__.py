@@ -3,19 +3,61 @@
 Everyday names live here; everything else has one import path in its subpackage
 (:mod:`springsim.forces`, :mod:`springsim.assembly`, :mod:`springsim.linsolve`,
 :mod:`springsim.integrators`, :mod:`springsim.scene`).
+
+The names are loaded on first use (PEP 562), so ``import springsim`` and the command
+line start without importing numpy and scipy; a Ctrl-C during start-up is then handled
+by the command line like any other interrupt.
 """
 
-from .builder import ModelBuilder
-from .driver import Trajectory, simulate
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING
+
 from .errors import (ConvergenceWarning, FallbackWarning, SceneError, SceneTypeError, SimulationError,
                      SimulationInterrupted, SolverError, SpringsimError, SpringsimWarning)
-from .integrators import INTEGRATORS, make_integrator
-from .linsolve import LINEAR_SOLVERS, make_linear_solver
-from .model import Model, State
 
 __version__ = "0.1.0"
 
-__all__ = ["ModelBuilder", "Model", "State", "Trajectory", "simulate", "make_integrator", "make_linear_solver",
-           "INTEGRATORS", "LINEAR_SOLVERS", "SpringsimError", "SceneError", "SceneTypeError", "SimulationError",
-           "SolverError", "SimulationInterrupted", "SpringsimWarning", "ConvergenceWarning", "FallbackWarning",
-           "__version__"]
+#: Lazily loaded names -> the module that defines them.
+_LAZY = {
+    "ModelBuilder": ".builder",
+    "Model": ".model",
+    "State": ".model",
+    "Trajectory": ".driver",
+    "simulate": ".driver",
+    "simulate_adaptive": ".adaptive",
+    "make_integrator": ".integrators",
+    "INTEGRATORS": ".integrators",
+    "make_linear_solver": ".linsolve",
+    "LINEAR_SOLVERS": ".linsolve",
+    "load_scene": ".scene",
+}
+
+__all__ = ["ModelBuilder", "Model", "State", "Trajectory", "simulate", "simulate_adaptive", "make_integrator",
+           "make_linear_solver", "load_scene", "INTEGRATORS", "LINEAR_SOLVERS", "SpringsimError", "SceneError",
+           "SceneTypeError", "SimulationError", "SolverError", "SimulationInterrupted", "SpringsimWarning",
+           "ConvergenceWarning", "FallbackWarning", "__version__"]
+
+
+def __getattr__(name: str):
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'springsim' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module, __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_LAZY))
+
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .adaptive import simulate_adaptive
+    from .builder import ModelBuilder
+    from .driver import Trajectory, simulate
+    from .integrators import INTEGRATORS, make_integrator
+    from .linsolve import LINEAR_SOLVERS, make_linear_solver
+    from .model import Model, State
+    from .scene import load_scene

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .errors import SceneError
+from .errors import SceneError, SceneTypeError
 from .model import AXES, Model
 
 __all__ = ["ModelBuilder", "default_softening", "SOFTENING_TIME", "SOFTENING_PRECISION"]
@@ -42,11 +42,27 @@ def default_softening(G, m_i, m_j) -> np.ndarray:
     return np.cbrt(scale * np.asarray(G, dtype=np.float64) * np.maximum(m_i, m_j))
 
 
-def _as_rows(name: str, value, count: int | None = None, width: int = 3) -> np.ndarray:
+def _numeric(name: str, value, dtype=np.float64) -> np.ndarray:
+    """``value`` as a float64 array; a SceneTypeError naming ``name`` for strings, booleans and other non-numbers.
+
+    Integers are converted exactly (never truncated); booleans are refused as numbers (``mass=True`` is a mistake,
+    not 1 kg).
+    """
+    if isinstance(value, (str, bytes)):
+        raise SceneTypeError(name, f"must be numeric, got {type(value).__name__} {value!r:.60}")
     try:
-        a = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise SceneError(name, f"must be numeric, got {value!r}") from None
+        a = np.asarray(value)
+    except (TypeError, ValueError):  # ragged nested lists
+        raise SceneTypeError(name, "must be numeric, got a ragged or non-numeric sequence") from None
+    if a.dtype.kind not in "iuf":
+        what = {"b": "booleans", "U": "strings", "S": "bytes", "O": "objects", "c": "complex numbers"}.get(
+            a.dtype.kind, str(a.dtype))
+        raise SceneTypeError(name, f"must be numeric, got {what}")
+    return a.astype(dtype)
+
+
+def _as_rows(name: str, value, count: int | None = None, width: int = 3) -> np.ndarray:
+    a = _numeric(name, value)
     if a.ndim == 1 and a.shape[0] == width and count in (None, 1) and width > 1:
         a = a[None, :]
     if a.ndim != 2 or a.shape[1] != width:
@@ -56,13 +72,29 @@ def _as_rows(name: str, value, count: int | None = None, width: int = 3) -> np.n
     return a
 
 
-def _as_column(name: str, value, count: int, dtype=np.float64) -> np.ndarray:
-    try:
-        a = np.asarray(value, dtype=dtype)
-    except (TypeError, ValueError):
-        raise SceneError(name, f"must be numeric, got {value!r}") from None
+def _as_column(name: str, value, count: int) -> np.ndarray:
+    a = _numeric(name, value)
     if a.ndim == 0:
-        return np.full(count, a, dtype=dtype)
+        return np.full(count, a, dtype=np.float64)
+    if a.shape != (count,):
+        raise SceneError(name, f"must be a scalar or have shape ({count},), got {a.shape}")
+    return a
+
+
+def _as_flags(name: str, value, count: int) -> np.ndarray:
+    """Booleans (or integers 0 and 1) as a bool array (count,); strings such as ``"false"`` are refused."""
+    if isinstance(value, (str, bytes)):
+        raise SceneTypeError(name, f"must be True or False, got {type(value).__name__} {value!r:.60}")
+    try:
+        a = np.asarray(value)
+    except (TypeError, ValueError):
+        raise SceneTypeError(name, "must be booleans, got a ragged or non-boolean sequence") from None
+    if a.dtype.kind in "iu" and np.all((a == 0) | (a == 1)):
+        a = a.astype(bool)
+    if a.dtype.kind != "b":
+        raise SceneTypeError(name, f"must be True or False (or 0 and 1), got {a.dtype} values")
+    if a.ndim == 0:
+        return np.full(count, bool(a))
     if a.shape != (count,):
         raise SceneError(name, f"must be a scalar or have shape ({count},), got {a.shape}")
     return a
@@ -174,7 +206,7 @@ class ModelBuilder:
         p["mass"].append(_as_column("particles.mass", mass, n))
         p["radius"].append(_as_column("particles.radius", np.nan if radius is None else radius, n))
         p["drag"].append(_as_column("particles.drag", drag, n))
-        p["fixed"].append(_as_column("particles.fixed", fixed, n, dtype=bool))
+        p["fixed"].append(_as_flags("particles.fixed", fixed, n))
         start = self._n_particles
         self._n_particles += n
         return range(start, self._n_particles)
@@ -328,8 +360,8 @@ class ModelBuilder:
             if up not in AXES:
                 raise SceneError("up_axis", f"must be one of {', '.join(AXES)}, got {up!r}")
             up = AXES.index(up)
-        if up not in (0, 1, 2):
-            raise SceneError("up_axis", f"must be 0, 1 or 2, got {up!r}")
+        if isinstance(up, (bool, np.bool_)) or not isinstance(up, (int, np.integer)) or up not in (0, 1, 2):
+            raise SceneError("up_axis", f"must be x, y, z or 0, 1, 2, got {up!r:.60}")
 
         return Model(
             particle_q=q, particle_qd=qd, particle_mass=mass, particle_radius=radius,
@@ -341,10 +373,9 @@ class ModelBuilder:
 
 
 def _scalar(path: str, v) -> float:
-    try:
-        f = float(v)
-    except (TypeError, ValueError):
-        raise SceneError(path, f"must be a number, got {v!r}") from None
+    if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float, np.integer, np.floating)):
+        raise SceneTypeError(path, f"must be a number, got {type(v).__name__} {v!r:.60}")
+    f = float(v)
     if not np.isfinite(f):
         raise SceneError(path, f"must be finite, got {f}")
     return f

@@ -2,10 +2,10 @@
 
 Subcommands live in :data:`COMMANDS`. A command is any object with
 ``add_arguments(parser)`` and ``run(args) -> int`` (and optionally ``help``), or the
-dotted name of a module that has them (imported only when the parser is built), so
+``"module:attribute"`` path of one (imported only when the parser is built), so
 adding one is a single line::
 
-    COMMANDS["plot"] = "springsim.viz.plot_command"
+    COMMANDS["plot"] = "springsim.cli_extra:plot_command"
 
 Exit status: 0 success, 1 simulation blew up, 2 user error (bad scene, bad option,
 missing file; one line ``springsim: error: ...`` on stderr, no traceback), 130
@@ -27,6 +27,7 @@ from typing import Callable
 
 from ._argtypes import int_at_least, positive_float
 from .errors import SceneError, SimulationError, SimulationInterrupted, SpringsimError, SpringsimWarning
+from .options import MAX_STEPS
 
 __all__ = ["COMMANDS", "Command", "main", "build_parser"]
 
@@ -84,8 +85,8 @@ class ProgressBar:
 
 
 # -- run ----------------------------------------------------------------------------------
-_positive_int = int_at_least(1)
-_nonnegative_int = int_at_least(0)
+_positive_int = int_at_least(1, MAX_STEPS)
+_nonnegative_int = int_at_least(0, MAX_STEPS)
 
 
 def _run_add_arguments(p: argparse.ArgumentParser) -> None:
@@ -100,7 +101,7 @@ def _run_add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rtol", type=positive_float, metavar="R",
                    help="relative tolerance of iterative linear solvers (overrides solver.linear_rtol)")
     p.add_argument("--newton-tol", type=positive_float, metavar="TOL", help="Newton tolerance on |dv| [m/s]")
-    p.add_argument("--newton-maxiter", type=_positive_int, metavar="N", help="Newton iteration limit")
+    p.add_argument("--newton-maxiter", type=int_at_least(1, 10**6), metavar="N", help="Newton iteration limit")
     p.add_argument("--time-rtol", type=positive_float, metavar="R",
                    help="adaptive time stepping (bdf2, tr_bdf2): relative local error tolerance; --dt is then "
                         "the first step and the frame spacing (overrides solver.time_rtol)")
@@ -271,27 +272,39 @@ def _run(args: argparse.Namespace) -> int:
     return 0
 
 
-#: Registry of subcommands: name -> Command, or dotted module name with add_arguments/run.
+#: Registry of subcommands: name -> Command, or the dotted path ``"module:attribute"`` of one
+#: (imported only when the parser is built).
 COMMANDS: dict[str, object] = {
     "run": Command(_run_add_arguments, _run, "run a scene and print a summary"),
+    "plot": "springsim.cli_extra:plot_command",
+    "render": "springsim.cli_extra:render_command",
+    "export": "springsim.cli_extra:export_command",
 }
-from .cli_extra import export_command, plot_command, render_command  # noqa: E402
-COMMANDS.update(plot=plot_command, render=render_command, export=export_command)
 
 
 def _resolve(cmd):
     if isinstance(cmd, str):
-        cmd = importlib.import_module(cmd)
+        module, _, attr = cmd.partition(":")
+        cmd = importlib.import_module(module)
+        if attr:
+            cmd = getattr(cmd, attr)
     return cmd
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line usage errors (``springsim run: error: argument --steps: ...; see --help``)."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {' '.join(message.split())}; see '{self.prog} --help'\n")
 
 
 def build_parser() -> argparse.ArgumentParser:
     """The top-level parser with one subparser per entry of :data:`COMMANDS`."""
     from . import __version__
 
-    parser = argparse.ArgumentParser(prog="springsim", description="Large mass-spring systems, implicitly integrated.")
+    parser = _Parser(prog="springsim", description="Large mass-spring systems, implicitly integrated.")
     parser.add_argument("--version", action="version", version=f"springsim {__version__}")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
     for name, cmd in COMMANDS.items():
         cmd = _resolve(cmd)
@@ -310,11 +323,14 @@ def _error(message: str) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """Parse ``argv`` (default ``sys.argv[1:]``), run the command, return the exit status."""
-    parser = build_parser()
     try:
+        parser = build_parser()
         args = parser.parse_args(argv)
     except SystemExit as e:  # argparse: --help/--version (0) or usage error (2)
         return int(e.code) if isinstance(e.code, int) else 2
+    except KeyboardInterrupt:  # during start-up (the commands' imports)
+        print("springsim: interrupted", file=sys.stderr)
+        return 130
     scene = getattr(args, "scene", None)
     try:
         return int(args._command.run(args))

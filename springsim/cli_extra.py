@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._argtypes import int_at_least
+from ._argtypes import int_at_least, positive_float
 from .errors import SceneError, SpringsimError
 
 __all__ = ["plot_command", "render_command", "export_command", "load_trajectory"]
@@ -45,7 +45,7 @@ def _simulate_scene(scene, steps, dt=None, frame_every: int = 1):
         return simulate(scene.model, integ, cfg.dt, int(steps), frame_every=frame_every)
 
 
-_positive_int = int_at_least(1)
+_positive_int = int_at_least(1, 10**12)
 
 
 class _PlotCommand:
@@ -55,7 +55,7 @@ class _PlotCommand:
         p.add_argument("scene", help="scene YAML file")
         p.add_argument("--out", help="output PNG (default <scene>_plot.png)")
         p.add_argument("--steps", type=_positive_int, help="number of steps (default: the scene's)")
-        p.add_argument("--dt", type=float, help="time step [s] (default: the scene's)")
+        p.add_argument("--dt", type=positive_float, help="time step [s] (default: the scene's)")
 
     def run(self, args) -> int:
         from .scene.yaml_io import load_scene

@@ -39,13 +39,10 @@ from .energy import EnergyBound
 from .errors import (ConvergenceWarning, FallbackWarning, SimulationError, SimulationInterrupted, SpringsimError)
 from .integrators import Integrator, StepStats
 from .model import State
+from .options import MAX_STEPS, describe_int
 
 __all__ = ["Trajectory", "simulate", "SimulationInterrupted", "save_npz_atomic", "check_output_path",
            "RunRecorder", "steps_for_duration", "MAX_STEPS"]
-
-#: Largest number of steps a run may ask for (a guard against overflowing step counts).
-MAX_STEPS = 10**12
-
 
 @dataclass
 class Trajectory:
@@ -243,7 +240,7 @@ def _count(name: str, value, lo: int) -> int:
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
         raise TypeError(f"{name} must be an integer, got {type(value).__name__} {value!r}")
     if not lo <= value <= MAX_STEPS:
-        raise ValueError(f"{name} must be in [{lo}, {MAX_STEPS}], got {value}")
+        raise ValueError(f"{name} must be in [{lo}, {MAX_STEPS}], got {describe_int(int(value))}")
     return int(value)
 
 

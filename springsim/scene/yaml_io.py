@@ -26,6 +26,8 @@ from __future__ import annotations
 import math
 import os
 import re
+import reprlib
+import stat
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -34,18 +36,36 @@ import yaml
 
 from ..builder import ModelBuilder
 from ..errors import SceneError
+from ..options import MAX_STEPS
 from ..model import AXES, Model
 from .gallery import BENCHMARK_DT, PIN_MODES, add_cloth_grid
 
 __all__ = ["Scene", "SolverConfig", "PlotSpec", "load_scene", "parse_scene", "DEFAULT_STEPS",
-           "MAX_GENERATED_PARTICLES"]
+           "MAX_GENERATED_PARTICLES", "MAX_SCENE_BYTES", "MAX_NESTING"]
 
 #: Run length used when neither the scene nor the caller gives one.
 DEFAULT_STEPS = 100
 
 #: Largest particle count the generator blocks may create (read at call time), so a typo
-#: such as ``nx: 1000000`` is an error rather than an out-of-memory crash.
+#: such as ``nx: 1000000`` is an error rather than an out-of-memory crash. A smaller bound
+#: comes from the memory available (:data:`GENERATED_BYTES_PER_PARTICLE`).
 MAX_GENERATED_PARTICLES = 50_000_000
+
+#: Peak memory of building a generated cloth, per particle [bytes] (1.07 GB for the 1024 x 1024
+#: cloth); a generator block that would need more than the memory available is refused.
+GENERATED_BYTES_PER_PARTICLE = 1100
+
+#: Largest scene file read [bytes].
+MAX_SCENE_BYTES = 256 * 2**20
+
+#: Deepest nesting of collections a scene document may have (scenes need 4; the YAML C parser's
+#: composer recurses once per level and would overflow the C stack on deep hostile documents).
+MAX_NESTING = 64
+
+#: A document whose aliases would expand it to more than ``max(ALIAS_EXPANSION * bytes,
+#: MIN_EXPANDED_NODES)`` nodes is refused (an honest document has fewer nodes than bytes).
+ALIAS_EXPANSION = 4
+MIN_EXPANDED_NODES = 1_000_000
 
 _TOP_KEYS = ("solver", "particles", "springs", "gravitational", "plot", "cloth", "benchmark_cloth",
              "name", "description")
@@ -68,11 +88,26 @@ _SafeBase = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
 
 class _Loader(_SafeBase):
-    """``yaml.SafeLoader`` that also reads ``1e4`` and ``1.0e4`` as floats (YAML 1.2 style).
+    """``yaml.SafeLoader`` that reads ``1e4`` and ``1.0e4`` as floats and rejects duplicate keys.
 
     PyYAML follows YAML 1.1, where an exponent needs a sign and a dot (``1.0e+4``), so
-    ``ke: 1e4`` would silently be the string ``"1e4"``.
+    ``ke: 1e4`` would silently be the string ``"1e4"``. A mapping that gives a key twice
+    (the second would silently win) is an error; keys brought in by a merge (``<<: *base``)
+    may be overridden, as YAML specifies.
     """
+
+    def construct_mapping(self, node, deep=False):
+        if isinstance(node, yaml.MappingNode):
+            seen = set()
+            for key_node, _ in node.value:
+                if key_node.tag == "tag:yaml.org,2002:merge" or not isinstance(key_node, yaml.ScalarNode):
+                    continue
+                key = self.construct_object(key_node)
+                if key in seen:
+                    raise yaml.constructor.ConstructorError(None, None, f"duplicate key {_show(key)}",
+                                                            key_node.start_mark)
+                seen.add(key)
+        return super().construct_mapping(node, deep)
 
 
 _Loader.add_implicit_resolver(
@@ -145,10 +180,10 @@ class SolverConfig:
             v = getattr(self, key)
             if v is not None:
                 _positive(f"solver.{key}", v)
-        for key, lo in (("newton_maxiter", 1), ("steps", 0)):
+        for key, lo, hi in (("newton_maxiter", 1, 10**6), ("steps", 0, MAX_STEPS)):
             v = getattr(self, key)
-            if v is not None and (not _is_int(v) or v < lo):
-                raise SceneError(f"solver.{key}", f"must be an integer >= {lo}, got {_show(v)}")
+            if v is not None and (not _is_int(v) or not lo <= v <= hi):
+                raise SceneError(f"solver.{key}", f"must be an integer in [{lo}, {hi}], got {_show(v)}")
         return self
 
     def with_overrides(self, **overrides) -> "SolverConfig":
@@ -214,8 +249,13 @@ class Scene:
 
 
 # -- small checks -------------------------------------------------------------------------
+_REPR = reprlib.Repr()
+_REPR.maxlevel, _REPR.maxlist, _REPR.maxdict, _REPR.maxstring, _REPR.maxlong, _REPR.maxother = 2, 4, 3, 40, 40, 40
+
+
 def _show(v, limit: int = 60) -> str:
-    s = repr(v)
+    """A short repr for messages: bounded in time and size for any value (huge, nested, recursive)."""
+    s = _REPR.repr(v)
     return s if len(s) <= limit else s[: limit - 3] + "..."
 
 
@@ -303,7 +343,7 @@ def _parse_solver(doc: dict, default_dt: float | None) -> tuple[SolverConfig, fl
         if steps is not None:
             raise SceneError("solver", "give steps or duration, not both")
         dur = _number("solver.duration", s["duration"], lo=0.0)
-        if not dur / dt < 1e12:
+        if not dur / dt <= MAX_STEPS:
             raise SceneError("solver.duration", f"needs too many steps of {dt:g} s, got {_show(dur)}")
         steps = max(int(math.ceil(dur / dt - 1e-9)), 0)
     for key in ("type", "linear_solver", "jacobian"):
@@ -411,8 +451,8 @@ def _parse_cloth(path: str, c) -> dict:
     kw: dict = {}
     for key in ("nx", "ny"):
         v = c[key]
-        if not _is_int(v) or v < 2:
-            raise SceneError(f"{path}.{key}", f"must be an integer >= 2, got {_show(v)}")
+        if not _is_int(v) or not 2 <= v <= MAX_GENERATED_PARTICLES:
+            raise SceneError(f"{path}.{key}", f"must be an integer in [2, {MAX_GENERATED_PARTICLES}], got {_show(v)}")
         kw[key] = v
     if "spacing" in c and "size" in c:
         raise SceneError(path, "give spacing or size, not both")
@@ -448,8 +488,8 @@ def _parse_benchmark(c) -> dict:
     path = "benchmark_cloth"
     _mapping(path, c, _BENCH_KEYS, ("n",))
     n = c["n"]
-    if not _is_int(n) or n < 2:
-        raise SceneError(f"{path}.n", f"must be an integer >= 2, got {_show(n)}")
+    if not _is_int(n) or not 2 <= n <= MAX_GENERATED_PARTICLES:
+        raise SceneError(f"{path}.n", f"must be an integer in [2, {MAX_GENERATED_PARTICLES}], got {_show(n)}")
     kd = _number(f"{path}.kd", c.get("kd", 0.0), lo=0.0)
     ke = _number(f"{path}.ke", c.get("ke", 1e4), lo=0.0)
     kw = dict(nx=n, ny=n, size=(1.0, 1.0), ke=ke, kd=kd, kd_shear=kd, bending=True, kd_bend=kd,
@@ -512,10 +552,14 @@ def parse_scene(doc, *, source: str = "<string>") -> Scene:
     if "benchmark_cloth" in doc:
         cloths.append(_parse_benchmark(doc["benchmark_cloth"]))
     generated = sum(c["nx"] * c["ny"] for c in cloths)
+    where = "cloth" if "cloth" in doc else "benchmark_cloth"
     if generated > MAX_GENERATED_PARTICLES:
-        raise SceneError("cloth" if "cloth" in doc else "benchmark_cloth",
-                         f"generator blocks would create {generated} particles, more than the limit "
-                         f"springsim.scene.yaml_io.MAX_GENERATED_PARTICLES = {MAX_GENERATED_PARTICLES}")
+        raise SceneError(where, f"generator blocks would create {generated} particles, more than the limit "
+                                f"springsim.scene.yaml_io.MAX_GENERATED_PARTICLES = {MAX_GENERATED_PARTICLES}")
+    need, have = generated * GENERATED_BYTES_PER_PARTICLE, _available_memory()
+    if have is not None and need > have:
+        raise SceneError(where, f"generator blocks would create {generated} particles, which need about "
+                                f"{need / 2**30:.1f} GiB to build; {have / 2**30:.1f} GiB of memory are available")
     cfg, gravity, up = _parse_solver(doc, BENCHMARK_DT if "benchmark_cloth" in doc else None)
 
     particles = _parse_particles(_item_list("particles", doc.get("particles")))
@@ -551,6 +595,88 @@ def parse_scene(doc, *, source: str = "<string>") -> Scene:
     model = b.finalize()
     return Scene(model=model, config=cfg, plot=plot, source=source, name=name,
                  metadata={"description": doc.get("description", "")})
+
+
+def _available_memory() -> int | None:
+    """Memory available to a new allocation [bytes] (Linux ``MemAvailable``, else physical memory; None if unknown)."""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return int(os.sysconf("SC_PHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
+    except (AttributeError, ValueError, OSError):
+        return None
+
+
+def _read_scene_file(source: str) -> str:
+    """The text of a scene file: a regular file of at most :data:`MAX_SCENE_BYTES`, UTF-8."""
+    try:
+        st = os.stat(source)
+    except FileNotFoundError:
+        raise SceneError(source, "no such file") from None
+    except OSError as e:
+        raise SceneError(source, f"cannot read: {e.strerror or e}") from None
+    if stat.S_ISDIR(st.st_mode):
+        raise SceneError(source, "is a directory, not a scene file")
+    if not stat.S_ISREG(st.st_mode):
+        raise SceneError(source, "not a regular file (a device, FIFO or socket); give a scene file")
+    if st.st_size > MAX_SCENE_BYTES:
+        raise SceneError(source, f"is {st.st_size} bytes, more than the limit of {MAX_SCENE_BYTES} bytes "
+                                 f"(springsim.scene.yaml_io.MAX_SCENE_BYTES); use a generator block for big cloths")
+    try:
+        with open(source, "rb") as fh:
+            data = fh.read(MAX_SCENE_BYTES + 1)  # bounded even if the file grows while it is read
+    except OSError as e:
+        raise SceneError(source, f"cannot read: {e.strerror or e}") from None
+    if len(data) > MAX_SCENE_BYTES:
+        raise SceneError(source, f"is more than the limit of {MAX_SCENE_BYTES} bytes")
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise SceneError(source, f"not UTF-8 text (byte {e.start})") from None
+
+
+def _check_document_shape(text: str, source: str) -> None:
+    """Refuse documents nested deeper than :data:`MAX_NESTING` or whose aliases expand them too far.
+
+    Runs on the parser's event stream (no recursion, memory bounded by the anchors), before
+    the document is composed: the composer of the C parser recurses once per nesting level, and
+    an alias bomb of a few hundred bytes expands to billions of nodes for anything that walks it.
+    """
+    limit = max(ALIAS_EXPANSION * len(text), MIN_EXPANDED_NODES)
+    stack: list[list] = []  # open collections: [anchor, expanded size]
+    sizes: dict[str, int] = {}
+    total = 0
+    for ev in yaml.parse(text, Loader=_Loader):
+        if isinstance(ev, (yaml.MappingStartEvent, yaml.SequenceStartEvent)):
+            if len(stack) >= MAX_NESTING:
+                raise SceneError(source, f"YAML document is nested deeper than {MAX_NESTING} levels (line "
+                                         f"{ev.start_mark.line + 1})")
+            stack.append([ev.anchor, 1])
+            continue
+        if isinstance(ev, (yaml.MappingEndEvent, yaml.SequenceEndEvent)):
+            anchor, size = stack.pop()
+        elif isinstance(ev, yaml.ScalarEvent):
+            anchor, size = ev.anchor, 1
+        elif isinstance(ev, yaml.AliasEvent):
+            anchor, size = None, sizes.get(ev.anchor, 1)
+        else:
+            continue
+        if anchor is not None:
+            sizes[anchor] = size
+        total += size if not stack else 0
+        if stack:
+            stack[-1][1] += size
+            if stack[-1][1] > limit:
+                total = stack[-1][1]
+        if total > limit:
+            raise SceneError(source, f"YAML aliases expand the document to more than {limit} nodes (line "
+                                     f"{ev.start_mark.line + 1}); write the repeated items out or use a generator "
+                                     f"block")
 
 
 def _looks_like_path(x) -> bool:
@@ -589,33 +715,36 @@ def load_scene(path_or_text) -> Scene:
     """
     if _looks_like_path(path_or_text):
         source = os.fspath(path_or_text)
-        try:
-            text = Path(source).read_text(encoding="utf-8")
-        except FileNotFoundError:
-            raise SceneError(source, "no such file") from None
-        except IsADirectoryError:
-            raise SceneError(source, "is a directory, not a scene file") from None
-        except (OSError, UnicodeDecodeError) as e:
-            raise SceneError(source, f"cannot read: {type(e).__name__}: {_one_line(str(e))}") from None
+        text = _read_scene_file(source)
     elif isinstance(path_or_text, str):
         source, text = "<string>", path_or_text
+        if len(text) > MAX_SCENE_BYTES:
+            raise SceneError(source, f"is more than the limit of {MAX_SCENE_BYTES} bytes")
     else:
         raise SceneError("", f"expected a path or YAML text, got {type(path_or_text).__name__}")
     try:
+        _check_document_shape(text, source)
         doc = yaml.load(text, Loader=_Loader)  # noqa: S506 (a SafeLoader subclass)
     except yaml.MarkedYAMLError as e:
         mark = e.problem_mark or e.context_mark
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
         what = _one_line(" ".join(x for x in (e.context, e.problem) if x)) or "invalid YAML"
-        raise SceneError(source, f"YAML syntax error{where}: {what}") from None
+        kind = "YAML error" if isinstance(e, yaml.constructor.ConstructorError) else "YAML syntax error"
+        raise SceneError(source, f"{kind}{where}: {what}") from None
     except yaml.YAMLError as e:
         raise SceneError(source, f"YAML error: {_one_line(str(e))}") from None
+    except SceneError:
+        raise
+    except (ValueError, OverflowError) as e:  # e.g. an integer with more digits than Python converts
+        raise SceneError(source, f"YAML value out of range: {_one_line(str(e))[:200]}") from None
     except RecursionError:
         raise SceneError(source, "YAML document is nested too deeply") from None
     try:
         return parse_scene(doc, source=source)
     except RecursionError:
         raise SceneError(source, "YAML document is nested too deeply") from None
+    except MemoryError:
+        raise SceneError(source, "the scene does not fit in memory") from None
 
 
 def _one_line(s: str) -> str:

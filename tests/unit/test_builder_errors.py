@@ -65,7 +65,7 @@ CASES = [
     ("gravity_string", lambda b: setattr(b, "gravity", "down"), "solver.gravity", "must be a number"),
     ("pair_epsilon_zero", lambda b: setattr(b, "pair_epsilon", 0.0), "pair_epsilon", "must be > 0"),
     ("up_axis_unknown", lambda b: setattr(b, "up_axis", "w"), "up_axis", "must be one of x, y, z"),
-    ("up_axis_int", lambda b: setattr(b, "up_axis", 3), "up_axis", "must be 0, 1 or 2"),
+    ("up_axis_int", lambda b: setattr(b, "up_axis", 3), "up_axis", "must be x, y, z or 0, 1, 2, got 3"),
 ]
 
 
