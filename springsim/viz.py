@@ -1,8 +1,9 @@
 """Pictures of simulations: a DoF plotted over time, rendered frames and animated GIFs.
 
 matplotlib is an optional extra (``pip install 'springsim[plot]'``) imported only
-when a function here is called; all output is written with the non-interactive
-Agg backend. Springs are drawn as line segments (one ``Line3DCollection``), a cloth
+when a function here is called. Figures are standalone ``matplotlib.figure.Figure``
+objects, so no backend, display or ``MPLBACKEND`` setting is needed, and pyplot's state is
+left alone. Springs are drawn as line segments (one ``Line3DCollection``), a cloth
 (see :func:`cloth_blocks`) as a shaded surface, free particles as dots and fixed ones
 as black squares.
 """
@@ -22,15 +23,17 @@ DOF_NAMES = {"x": 0, "y": 1, "z": 2}
 
 
 def require_matplotlib():
-    """Return ``matplotlib.pyplot`` on the Agg backend, or raise :class:`SpringsimError`."""
+    """Return :class:`matplotlib.figure.Figure`, or raise :class:`SpringsimError` without matplotlib.
+
+    springsim draws on standalone figures (no pyplot, no global backend): nothing here depends
+    on ``MPLBACKEND`` or a display, and the caller's pyplot state is left alone.
+    """
     try:
-        import matplotlib
+        import matplotlib  # noqa: F401  (first: a missing matplotlib is found even if a submodule is cached)
+        from matplotlib.figure import Figure
     except ImportError:
         raise SpringsimError("matplotlib is needed for plots and renders: pip install 'springsim[plot]'") from None
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
+    return Figure
 
 
 def _dof_index(dof) -> int:
@@ -65,12 +68,13 @@ def plot_dof(traj, particle_id: int, dof, y_range=None, out_png=None, *, title: 
     -------
     Path or matplotlib.figure.Figure
     """
-    plt = require_matplotlib()
+    Figure = require_matplotlib()
     k = _dof_index(dof)
     n = traj.q.shape[1]
     if int(particle_id) != particle_id or not 0 <= particle_id < n:
         raise SpringsimError(f"plot.particle: must be in [0, {n}), got {particle_id!r}")
-    fig, ax = plt.subplots(figsize=(6.0, 3.4))
+    fig = Figure(figsize=(6.0, 3.4))
+    ax = fig.subplots()
     ax.plot(traj.t, traj.q[:, int(particle_id), k], lw=1.2)
     ax.set_xlabel("t [s]")
     ax.set_ylabel(f"particle {int(particle_id)} {'xyz'[k]} [m]")
@@ -84,7 +88,6 @@ def plot_dof(traj, particle_id: int, dof, y_range=None, out_png=None, *, title: 
         return fig
     Path(out_png).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out_png, dpi=dpi)
-    plt.close(fig)
     return Path(out_png)
 
 
@@ -144,8 +147,8 @@ def _draw(ax, model, q: np.ndarray, *, show_springs: bool, show_particles: bool,
     return artists
 
 
-def _axes(plt, lo, hi, size):
-    fig = plt.figure(figsize=size)
+def _axes(Figure, lo, hi, size):
+    fig = Figure(figsize=size)
     ax = fig.add_subplot(projection="3d")
     ax.set_xlim(lo[0], hi[0])
     ax.set_ylim(lo[1], hi[1])
@@ -182,12 +185,12 @@ def render_frame(model, q: np.ndarray, out_png, *, title: str | None = None, bou
     -------
     Path
     """
-    plt = require_matplotlib()
+    Figure = require_matplotlib()
     q = np.asarray(q, dtype=np.float64)
     if q.shape != (model.particle_count, 3):
         raise SpringsimError(f"render: positions must have shape ({model.particle_count}, 3), got {q.shape}")
     lo, hi = _bounds(q) if bounds is None else (np.asarray(bounds[0]), np.asarray(bounds[1]))
-    fig, ax = _axes(plt, lo, hi, size)
+    fig, ax = _axes(Figure, lo, hi, size)
     ax.view_init(elev=elev, azim=azim)
     _draw(ax, model, q, show_springs=show_springs, show_particles=show_particles, surface=surface)
     if title:
@@ -195,7 +198,6 @@ def render_frame(model, q: np.ndarray, out_png, *, title: str | None = None, bou
     fig.tight_layout()
     Path(out_png).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out_png, dpi=dpi)
-    plt.close(fig)
     return Path(out_png)
 
 
@@ -219,7 +221,7 @@ def render_gif(model, traj, out_gif, *, every: int = 1, fps: int = 20, show_spri
     -------
     Path
     """
-    plt = require_matplotlib()
+    Figure = require_matplotlib()
     from matplotlib.animation import PillowWriter
 
     if int(every) != every or every < 1:
@@ -228,7 +230,7 @@ def render_gif(model, traj, out_gif, *, every: int = 1, fps: int = 20, show_spri
     if frames[-1] != traj.q.shape[0] - 1:
         frames.append(traj.q.shape[0] - 1)
     lo, hi = _bounds(traj.q[frames])
-    fig, ax = _axes(plt, lo, hi, size)
+    fig, ax = _axes(Figure, lo, hi, size)
     Path(out_gif).parent.mkdir(parents=True, exist_ok=True)
     writer = PillowWriter(fps=fps)
     with writer.saving(fig, str(out_gif), dpi):
@@ -239,5 +241,4 @@ def render_gif(model, traj, out_gif, *, every: int = 1, fps: int = 20, show_spri
             _draw(ax, model, traj.q[k], show_springs=show_springs, show_particles=show_particles, surface=surface)
             ax.set_title(f"t = {traj.t[k]:.3f} s")
             writer.grab_frame()
-    plt.close(fig)
     return Path(out_gif)

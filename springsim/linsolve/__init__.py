@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from ..errors import SceneError
-from ._base import LinearSolver, LinearSolveResult, relative_residual
+from ._base import BACKWARD_TOL, LinearSolver, LinearSolveResult, backward_error, relative_residual
 from .amg_cg import LinearSolverAMGCG
 from .auto import LinearSolverAuto
 from .cg import LinearSolverCG
@@ -13,7 +13,7 @@ from .krylov import LinearSolverAMGGMRES
 
 __all__ = ["LINEAR_SOLVERS", "LinearSolver", "LinearSolverAMGCG", "LinearSolverAMGGMRES", "LinearSolverAuto",
            "LinearSolverCG", "LinearSolveResult", "LinearSolverDense", "LinearSolverDirect",
-           "make_linear_solver", "relative_residual"]
+           "make_linear_solver", "relative_residual", "backward_error", "BACKWARD_TOL"]
 
 #: Registry: name -> class.
 LINEAR_SOLVERS: dict[str, type[LinearSolver]] = {
