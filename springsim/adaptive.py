@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ._threads import single_blas_thread
 from .driver import RunRecorder, Trajectory
 from .errors import SceneError, SimulationError, SpringsimError
 from .integrators import INTEGRATORS, Integrator, make_integrator
@@ -175,74 +176,77 @@ def simulate_adaptive(model, integrator, t_end: float, *, frame_dt: float | None
     just_rejected = False
     attempts = 0
     try:
-        while fi < t_frames.size:
-            attempts += 1
-            if attempts > max_steps:
-                raise SimulationError(f"adaptive stepping exceeded max_steps={max_steps} at t={t:g} s; {run.kept()}",
-                                      run.trajectory(keep_last=True), step=info["accepted"])
-            if t + h >= t_end * (1 - 1e-12) or t_end - (t + h) < h_min:
-                h = t_end - t  # the last step lands on t_end
-            try:
-                st = run.step(h)
-            except SimulationError:
-                raise
-            except SpringsimError as e:  # a solve with no usable solution: retry smaller, like a failed Newton
-                st, why = None, f"{type(e).__name__}: {e}"
-            else:
-                info["newton_iterations"] += st.newton_iterations
-                info["linear_iterations"] += st.linear_iterations
-                why = run.problem(info["accepted"] + 1, t + h) or (None if st.ok else "; ".join(st.failures))
-            if why is not None:
-                info["rejected"] += 1
-                info["failed_attempts"] += 1
-                info["newton_failures"] += st is not None and not st.newton_converged
-                if h <= h_min * (1 + 1e-12):
-                    raise SimulationError(f"adaptive stepping failed at t={t:g} s with h = h_min = {h_min:g} s: "
-                                          f"{why}; {run.kept()}", run.trajectory(keep_last=True),
-                                          step=info["accepted"])
-                h = max(h_min, 0.25 * h)
-                just_rejected = True
-                continue
-            eq, ev = integrator.error_estimate
-            q0, v0, q1, v1 = run.state.particle_q, run.state.particle_qd, run.scratch.particle_q, run.scratch.particle_qd
-            err = _error_norm(eq, q0, q1, free, time_rtol, time_atol)
-            if error_on == "qv":
-                err = np.sqrt(0.5 * (err**2 + _error_norm(ev, v0, v1, free, time_rtol, time_atol)**2))
-            fac = safety * err**expo if err > 0 else grow
-            if err > 1.0 and h > h_min * (1 + 1e-12):
-                info["rejected"] += 1
-                h = max(h_min, h * min(0.9, max(shrink, fac)))
-                just_rejected = True
-                continue
-            # accepted: frames in (t, t1] by Hermite interpolation (exactly the state at t1)
-            t1 = t + h
-            info["accepted"] += 1
-            info["h_min"] = float(min(info["h_min"], h))
-            info["h_max"] = float(max(info["h_max"], h))
-            frames = []
-            while fi < t_frames.size and t_frames[fi] <= t1 * (1 + 1e-12):
-                tf = t_frames[fi]
-                if abs(tf - t1) <= 1e-12 * max(t1, 1.0):
-                    frames.append(None)
+        with single_blas_thread():
+            while fi < t_frames.size:
+                attempts += 1
+                if attempts > max_steps:
+                    raise SimulationError(f"adaptive stepping exceeded max_steps={max_steps} at t={t:g} s; "
+                                          f"{run.kept()}",
+                                          run.trajectory(keep_last=True), step=info["accepted"])
+                if t + h >= t_end * (1 - 1e-12) or t_end - (t + h) < h_min:
+                    h = t_end - t  # the last step lands on t_end
+                try:
+                    st = run.step(h)
+                except SimulationError:
+                    raise
+                except SpringsimError as e:  # a solve with no usable solution: retry smaller, like a failed Newton
+                    st, why = None, f"{type(e).__name__}: {e}"
                 else:
-                    qf, vf = hermite_frame(t, q0, v0, t1, q1, v1, tf)
-                    qf[fixed] = q1[fixed]
-                    vf[fixed] = 0.0
-                    frames.append((tf, qf, vf))
-                fi += 1
-            run.accept(st, t1)
-            for fr in frames:
-                if fr is None:
-                    run.record_current()
-                else:
-                    run.add_frame(*fr)
-            t = t1
-            info["h_mean"] = float(t / info["accepted"])
-            if progress is not None:
-                progress(t, t_end)
-            h = h * min(1.0 if just_rejected else grow, max(shrink, fac))
-            h = min(max(h, h_min), h_max)
-            just_rejected = False
+                    info["newton_iterations"] += st.newton_iterations
+                    info["linear_iterations"] += st.linear_iterations
+                    why = run.problem(info["accepted"] + 1, t + h) or (None if st.ok else "; ".join(st.failures))
+                if why is not None:
+                    info["rejected"] += 1
+                    info["failed_attempts"] += 1
+                    info["newton_failures"] += st is not None and not st.newton_converged
+                    if h <= h_min * (1 + 1e-12):
+                        raise SimulationError(f"adaptive stepping failed at t={t:g} s with h = h_min = {h_min:g} s: "
+                                              f"{why}; {run.kept()}", run.trajectory(keep_last=True),
+                                              step=info["accepted"])
+                    h = max(h_min, 0.25 * h)
+                    just_rejected = True
+                    continue
+                eq, ev = integrator.error_estimate
+                q0, v0 = run.state.particle_q, run.state.particle_qd
+                q1, v1 = run.scratch.particle_q, run.scratch.particle_qd
+                err = _error_norm(eq, q0, q1, free, time_rtol, time_atol)
+                if error_on == "qv":
+                    err = np.sqrt(0.5 * (err**2 + _error_norm(ev, v0, v1, free, time_rtol, time_atol)**2))
+                fac = safety * err**expo if err > 0 else grow
+                if err > 1.0 and h > h_min * (1 + 1e-12):
+                    info["rejected"] += 1
+                    h = max(h_min, h * min(0.9, max(shrink, fac)))
+                    just_rejected = True
+                    continue
+                # accepted: frames in (t, t1] by Hermite interpolation (exactly the state at t1)
+                t1 = t + h
+                info["accepted"] += 1
+                info["h_min"] = float(min(info["h_min"], h))
+                info["h_max"] = float(max(info["h_max"], h))
+                frames = []
+                while fi < t_frames.size and t_frames[fi] <= t1 * (1 + 1e-12):
+                    tf = t_frames[fi]
+                    if abs(tf - t1) <= 1e-12 * max(t1, 1.0):
+                        frames.append(None)
+                    else:
+                        qf, vf = hermite_frame(t, q0, v0, t1, q1, v1, tf)
+                        qf[fixed] = q1[fixed]
+                        vf[fixed] = 0.0
+                        frames.append((tf, qf, vf))
+                    fi += 1
+                run.accept(st, t1)
+                for fr in frames:
+                    if fr is None:
+                        run.record_current()
+                    else:
+                        run.add_frame(*fr)
+                t = t1
+                info["h_mean"] = float(t / info["accepted"])
+                if progress is not None:
+                    progress(t, t_end)
+                h = h * min(1.0 if just_rejected else grow, max(shrink, fac))
+                h = min(max(h, h_min), h_max)
+                just_rejected = False
     except KeyboardInterrupt:
         raise run.interrupted(f"t={t:g} s of {t_end:g} s") from None
     return run.finish()

@@ -16,8 +16,6 @@ import argparse
 import warnings
 from pathlib import Path
 
-import numpy as np
-
 from ._argtypes import int_at_least, positive_float
 from .errors import SceneError, SpringsimError
 

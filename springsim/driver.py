@@ -15,6 +15,8 @@ guarantees:
   reported once per run: a :class:`~springsim.errors.ConvergenceWarning` with the count
   and the first reason, and in :meth:`Trajectory.summary`. Linear-solver fallbacks are
   reported the same way with a :class:`~springsim.errors.FallbackWarning`.
+* **Threads.** The stepping loop runs with one BLAS thread
+  (:func:`springsim._threads.single_blas_thread`; the optional ``threads`` extra).
 * **Interrupts.** Ctrl-C raises :class:`~springsim.errors.SimulationInterrupted` (a
   ``KeyboardInterrupt``) with the frames so far.
 
@@ -39,6 +41,7 @@ from .energy import EnergyBound
 from .errors import (ConvergenceWarning, FallbackWarning, SimulationError, SimulationInterrupted, SpringsimError)
 from .integrators import Integrator, StepStats
 from .model import State
+from ._threads import single_blas_thread
 from .options import MAX_STEPS, describe_int
 
 __all__ = ["Trajectory", "simulate", "SimulationInterrupted", "save_npz_atomic", "check_output_path",
@@ -457,15 +460,16 @@ def simulate(model, integrator: Integrator, dt: float, steps: int, *, state=None
     run = RunRecorder(model, integrator, state, check_energy=check_energy)
     k = 0
     try:
-        for k in range(1, steps + 1):
-            t_new = k * dt
-            st = run.step(dt)
-            run.check(k, t_new)
-            run.accept(st, t_new)
-            if (k == steps) or (record and k % frame_every == 0):
-                run.record_current()
-            if progress is not None:
-                progress(k, steps)
+        with single_blas_thread():
+            for k in range(1, steps + 1):
+                t_new = k * dt
+                st = run.step(dt)
+                run.check(k, t_new)
+                run.accept(st, t_new)
+                if (k == steps) or (record and k % frame_every == 0):
+                    run.record_current()
+                if progress is not None:
+                    progress(k, steps)
     except KeyboardInterrupt:
         raise run.interrupted(f"step {run.steps} of {steps}") from None
     except SimulationError:

@@ -14,7 +14,8 @@ from .symplectic_euler import IntegratorSymplecticEuler
 from .bdf2 import IntegratorBDF2
 from .tr_bdf2 import IntegratorTRBDF2
 
-__all__ = ["INTEGRATORS", "Integrator", "ImplicitIntegrator", "StepStats", "PRECISION_LOSS_LIMIT", "ConvergenceWarning", "NewtonConvergenceWarning",
+__all__ = ["INTEGRATORS", "Integrator", "ImplicitIntegrator", "StepStats", "PRECISION_LOSS_LIMIT", "ConvergenceWarning",
+           "NewtonConvergenceWarning",
            "IntegratorExplicitEuler", "IntegratorSymplecticEuler", "IntegratorMidpoint",
            "IntegratorLinearizedImplicit", "IntegratorImplicitEuler", "IntegratorBDF2", "IntegratorTRBDF2",
            "make_integrator"]

@@ -121,7 +121,8 @@ def test_springsim_error_mid_run_becomes_simulation_error(exc):
 
 
 def test_newton_raise_mid_run_is_wrapped():
-    """implicit_euler with on_nonconvergence='raise' on a stiff cloth stops with SimulationError caused by SolverError."""
+    """implicit_euler with on_nonconvergence='raise' on a stiff cloth stops with SimulationError caused by
+    SolverError."""
     b = ModelBuilder()
     b.add_cloth_grid(5, 5, ke=1e7, pin="edge")
     m = b.finalize()
@@ -167,7 +168,8 @@ def test_driver_argument_validation():
                      (dict(dt=0.1, steps=1, frame_every=0), "frame_every")):
         with pytest.raises(ValueError, match=f"^{name} "):
             simulate(m, integ, **kw)
-    for kw, name in ((dict(dt="0.1", steps=1), "dt"), (dict(dt=True, steps=1), "dt"), (dict(dt=0.1, steps=2.5), "steps"),
+    for kw, name in ((dict(dt="0.1", steps=1), "dt"), (dict(dt=True, steps=1), "dt"),
+                     (dict(dt=0.1, steps=2.5), "steps"),
                      (dict(dt=0.1, steps=1, frame_every=1.5), "frame_every")):
         with pytest.raises(TypeError, match=f"^{name} "):
             simulate(m, integ, **kw)

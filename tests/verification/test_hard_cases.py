@@ -243,7 +243,7 @@ def coincident_pair(softening=None):
 
 
 def com_velocity_error(model, tr, i=0, j=1):
-    """Relative error of the centre-of-mass velocity of the pair (i, j), which is exactly g t (the pair forces cancel)."""
+    """Relative error of the centre-of-mass velocity of the pair (i, j), exactly g t (the pair forces cancel)."""
     m = model.particle_mass
     vcm = (m[i] * tr.qd[:, i] + m[j] * tr.qd[:, j]) / (m[i] + m[j])
     exact = np.array([0.0, 0.0, -9.81]) * tr.t[:, None]
