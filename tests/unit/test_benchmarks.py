@@ -169,3 +169,20 @@ def test_scene_cases_build(bench):
     c = bench["_common"]
     for case in c.scene_cases(0.5):
         assert case.model.particle_count >= 2 and case.size > 0
+
+
+def test_blas_threads_benchmark_tiny(capsys):
+    """benchmarks/blas_threads.py at a tiny size prints its table; both policies give the same trajectory; the policy
+    is restored afterwards."""
+    pytest.importorskip("threadpoolctl")
+    from springsim import _threads
+
+    sys.path.insert(0, str(BENCH))
+    try:
+        mod = importlib.import_module("blas_threads")
+    finally:
+        sys.path.remove(str(BENCH))
+    policy = _threads.single_blas_thread
+    assert mod.main(["--n", "4", "--steps", "2", "--solver", "direct"]) == 0
+    row = capsys.readouterr().out.strip().splitlines()[-1].split("|")
+    assert float(row[-2]) <= 1e-12 and _threads.single_blas_thread is policy
