@@ -13,7 +13,8 @@ from __future__ import annotations
 import numpy as np
 
 from .errors import SceneError, SceneTypeError
-from .model import AXES, Model
+from .model import AXES, ClothGrid, Model
+from .topology import PIN_MODES, PLANES, cloth_grid_pairs, cloth_pin_mask
 
 __all__ = ["ModelBuilder", "default_softening", "SOFTENING_TIME", "SOFTENING_PRECISION"]
 
@@ -155,6 +156,7 @@ class ModelBuilder:
         self._n_springs = 0
         self._n_gravs = 0
         self.metadata: dict = {}
+        self._cloth_grids: list[ClothGrid] = []
 
     # -- counts -----------------------------------------------------------------
     @property
@@ -275,11 +277,90 @@ class ModelBuilder:
         return range(start, self._n_gravs)
 
     # -- generators -----------------------------------------------------------------
-    def add_cloth_grid(self, nx: int, ny: int, **kwargs) -> range:
-        """Add an ``nx`` x ``ny`` cloth grid; see :func:`springsim.scene.gallery.add_cloth_grid`."""
-        from .scene.gallery import add_cloth_grid
+    def add_cloth_grid(self, nx: int, ny: int, *, origin=(0.0, 0.0, 0.0), spacing: float | None = None,
+                       size: tuple[float, float] | None = None, plane: str = "xy", mass: float | None = None,
+                       total_mass: float | None = None, drag: float = 0.0, ke: float = 1e4, kd: float = 0.0,
+                       ke_y: float | None = None, kd_y: float | None = None, ke_shear: float | None = None,
+                       kd_shear: float | None = None, bending: bool = True, ke_bend: float = 1e2,
+                       kd_bend: float = 0.0, pin: str = "edge") -> range:
+        """Add an ``nx`` x ``ny`` cloth of particles and springs; return the range of its particles.
 
-        return add_cloth_grid(self, nx, ny, **kwargs)
+        Particle ``(i, j)`` is ``start + j*nx + i``; the springs are those of
+        :func:`springsim.topology.cloth_grid_pairs` (structural along i and j, both shear
+        diagonals, bending at distance two). Every argument is validated here; an invalid one
+        raises :class:`~springsim.errors.SceneError` (or ``SceneTypeError``) with the path
+        ``cloth.<argument>``.
+
+        Parameters
+        ----------
+        nx, ny
+            Particles along the first and second in-plane axis (integers >= 2).
+        origin
+            Position of particle (0, 0) [m].
+        spacing, size
+            Grid spacing [m] (> 0), or the cloth's extent (sx, sy) [m] (> 0); default size (1, 1).
+        plane
+            Two axes spanned by the grid: ``"xy"``, ``"xz"`` or ``"yz"``.
+        mass, total_mass
+            Mass of each particle [kg], or of the whole cloth shared equally (> 0); default 1 kg in total.
+        drag
+            Linear drag per particle [N s/m], >= 0.
+        ke, kd
+            Structural springs along i (and along j unless ``ke_y``/``kd_y`` are given) [N/m], [N s/m], >= 0.
+        ke_y, kd_y
+            Structural springs along j; default ``ke``, ``kd``.
+        ke_shear, kd_shear
+            Diagonal springs; default ``ke``, ``kd``.
+        bending, ke_bend, kd_bend
+            Whether to add distance-two springs along i and j, and their stiffness and damping.
+        pin
+            One of :data:`springsim.topology.PIN_MODES`.
+        """
+        nx = _integer("cloth.nx", nx, 2)
+        ny = _integer("cloth.ny", ny, 2)
+        if plane not in PLANES:
+            raise SceneError("cloth.plane", f"must be one of {', '.join(PLANES)}, got {plane!r:.60}")
+        if pin not in PIN_MODES:
+            raise SceneError("cloth.pin", f"must be one of {', '.join(PIN_MODES)}, got {pin!r:.60}")
+        if not isinstance(bending, (bool, np.bool_)):
+            raise SceneTypeError("cloth.bending", f"must be True or False, got {bending!r:.60}")
+        o = _vector("cloth.origin", origin, 3)
+        if spacing is not None and size is not None:
+            raise SceneError("cloth", "give spacing or size, not both")
+        if mass is not None and total_mass is not None:
+            raise SceneError("cloth", "give mass or total_mass, not both")
+        if spacing is not None:
+            dx = dy = _number("cloth.spacing", spacing, lo=0.0, strict=True)
+        else:
+            sx, sy = (1.0, 1.0) if size is None else _vector("cloth.size", size, 2, lo=0.0, strict=True)
+            dx, dy = sx / (nx - 1), sy / (ny - 1)
+        if mass is not None:
+            m = _number("cloth.mass", mass, lo=0.0, strict=True)
+        else:
+            m = (1.0 if total_mass is None else _number("cloth.total_mass", total_mass, lo=0.0, strict=True)) / (nx * ny)
+        k = {name: None if v is None else _number(f"cloth.{name}", v, lo=0.0)
+             for name, v in (("drag", drag), ("ke", ke), ("kd", kd), ("ke_y", ke_y), ("kd_y", kd_y),
+                             ("ke_shear", ke_shear), ("kd_shear", kd_shear), ("ke_bend", ke_bend),
+                             ("kd_bend", kd_bend))}
+
+        ii, jj = np.meshgrid(np.arange(nx, dtype=np.float64), np.arange(ny, dtype=np.float64))
+        pos = np.tile(np.asarray(o), (nx * ny, 1))
+        a, b = PLANES[plane]
+        pos[:, a] += ii.ravel() * dx
+        pos[:, b] += jj.ravel() * dy
+        particles = self.add_particles(pos, None, m, drag=k["drag"], fixed=cloth_pin_mask(nx, ny, pin))
+        off = particles.start
+        topo = cloth_grid_pairs(nx, ny, bending=bool(bending))
+        ke_, kd_ = k["ke"], k["kd"]
+        self.add_springs(topo["structural_x"] + off, ke_, kd_)
+        self.add_springs(topo["structural_y"] + off, ke_ if k["ke_y"] is None else k["ke_y"],
+                         kd_ if k["kd_y"] is None else k["kd_y"])
+        self.add_springs(topo["shear"] + off, ke_ if k["ke_shear"] is None else k["ke_shear"],
+                         kd_ if k["kd_shear"] is None else k["kd_shear"])
+        if bending:
+            self.add_springs(topo["bending"] + off, k["ke_bend"], k["kd_bend"])
+        self._cloth_grids.append(ClothGrid(off, nx, ny))
+        return particles
 
     # -- finalize -------------------------------------------------------------------
     @staticmethod
@@ -368,17 +449,42 @@ class ModelBuilder:
             particle_drag=drag, particle_fixed=fixed,
             spring_indices=sij, spring_stiffness=ke, spring_damping=kd, spring_rest_length=l0,
             gravitational_indices=gij, gravitational_G=G, gravitational_softening=soft,
-            gravity=gravity, up_axis=int(up), pair_epsilon=eps, metadata=dict(self.metadata),
+            gravity=gravity, up_axis=int(up), pair_epsilon=eps, cloth_grids=tuple(self._cloth_grids),
+            metadata=dict(self.metadata),
         )
 
 
-def _scalar(path: str, v) -> float:
+def _number(path: str, v, *, lo: float | None = None, strict: bool = False) -> float:
+    """``v`` as a finite float (``> lo`` with ``strict``, else ``>= lo``); SceneTypeError for non-numbers."""
     if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float, np.integer, np.floating)):
         raise SceneTypeError(path, f"must be a number, got {type(v).__name__} {v!r:.60}")
-    f = float(v)
+    try:
+        f = float(v)
+    except OverflowError:  # an integer beyond float range
+        f = float("inf")
     if not np.isfinite(f):
         raise SceneError(path, f"must be finite, got {f}")
+    if lo is not None and (f <= lo if strict else f < lo):
+        raise SceneError(path, f"must be {'>' if strict else '>='} {lo:g}, got {f:g}")
     return f
+
+
+def _scalar(path: str, v) -> float:
+    return _number(path, v)
+
+
+def _integer(path: str, v, lo: int) -> int:
+    if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)):
+        raise SceneTypeError(path, f"must be an integer, got {type(v).__name__} {v!r:.60}")
+    if v < lo:
+        raise SceneError(path, f"must be an integer >= {lo}, got {v}")
+    return int(v)
+
+
+def _vector(path: str, v, n: int, **rule) -> tuple:
+    if isinstance(v, (str, bytes)) or not hasattr(v, "__len__") or len(v) != n:
+        raise SceneTypeError(path, f"must be {n} numbers, got {v!r:.60}")
+    return tuple(_number(f"{path}[{k}]", x, **rule) for k, x in enumerate(v))
 
 
 def _fmt(v) -> str:

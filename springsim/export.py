@@ -2,8 +2,7 @@
 
 Small ASCII writers in numpy, no extra dependency. Every frame becomes one file
 ``<stem>_<frame:04d>.<ext>`` holding the particle positions, the springs as line
-segments and, for cloths (``model.metadata['cloth_blocks']`` or ``['cloth_shape']``),
-the grid quads as faces. VTK frames come with a ``<stem>.vtk.series`` JSON file (ParaView
+segments and, for cloth grids (``model.cloth_grids``), the grid quads as faces. VTK frames come with a ``<stem>.vtk.series`` JSON file (ParaView
 5.5+) carrying the frame times; ParaView also groups numbered files by itself.
 """
 
@@ -15,19 +14,14 @@ from pathlib import Path
 import numpy as np
 
 from .errors import SpringsimError
+from .topology import cloth_quads as grid_quads
 
 __all__ = ["EXPORT_FORMATS", "cloth_quads", "write_vtk", "write_obj", "write_ply", "export_trajectory"]
 
 
 def cloth_quads(model) -> np.ndarray:
-    """Quads (Q, 4) of the model's cloth grids (:func:`springsim.viz.cloth_blocks`); (0, 4) if none."""
-    from .viz import cloth_blocks
-
-    quads = [np.zeros((0, 4), dtype=np.int64)]
-    for start, nx, ny in cloth_blocks(model):
-        idx = start + np.arange(nx * ny, dtype=np.int64).reshape(ny, nx)
-        quads.append(np.stack([idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, 1:].ravel(),
-                               idx[1:, :-1].ravel()], axis=1))
+    """Quads (Q, 4) of the model's cloth grids (``model.cloth_grids``); (0, 4) if none."""
+    quads = [np.zeros((0, 4), dtype=np.int64)] + [grid_quads(*g) for g in model.cloth_grids]
     return np.concatenate(quads)
 
 

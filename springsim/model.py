@@ -7,10 +7,11 @@ velocities of shape (N, 3) [m], [m/s]; ``M`` the diagonal mass matrix.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, fields
+from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["Model", "State", "AXES"]
+__all__ = ["Model", "State", "ClothGrid", "AXES"]
 
 #: Names of the coordinate axes, as accepted for ``up_axis``.
 AXES = ("x", "y", "z")
@@ -20,6 +21,14 @@ def _readonly(a: np.ndarray) -> np.ndarray:
     a = np.ascontiguousarray(a)
     a.setflags(write=False)
     return a
+
+
+class ClothGrid(NamedTuple):
+    """A cloth grid inside a model: particle ``(i, j)`` is ``start + j*nx + i``."""
+
+    start: int
+    nx: int
+    ny: int
 
 
 @dataclass(frozen=True, eq=False)
@@ -62,6 +71,11 @@ class Model:
     pair_epsilon : float
         Distance [m] below which a spring's direction is treated as undefined (see
         :mod:`springsim.forces.spring`).
+    cloth_grids : tuple of ClothGrid
+        The cloth grids added by :meth:`springsim.ModelBuilder.add_cloth_grid` (for drawing and
+        export: their quads are faces).
+    metadata : dict
+        Free-form information (``name``, ``source``) carried along; not used by the numerics.
     """
 
     particle_q: np.ndarray
@@ -80,6 +94,7 @@ class Model:
     gravity: float = -9.81
     up_axis: int = 2
     pair_epsilon: float = 1e-9
+    cloth_grids: tuple = ()
     metadata: dict = field(default_factory=dict)
 
     def __post_init__(self):

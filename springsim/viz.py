@@ -3,9 +3,9 @@
 matplotlib is an optional extra (``pip install 'springsim[plot]'``) imported only
 when a function here is called. Figures are standalone ``matplotlib.figure.Figure``
 objects, so no backend, display or ``MPLBACKEND`` setting is needed, and pyplot's state is
-left alone. Springs are drawn as line segments (one ``Line3DCollection``), a cloth
-(see :func:`cloth_blocks`) as a shaded surface, free particles as dots and fixed ones
-as black squares.
+left alone. Springs are drawn as line segments (one ``Line3DCollection``), a cloth grid
+(``model.cloth_grids``) as a shaded surface (its own springs are the surface; every other
+spring stays a line), free particles as dots and fixed ones as black squares.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ import numpy as np
 
 from .errors import SpringsimError
 
-__all__ = ["plot_dof", "render_frame", "render_gif", "require_matplotlib", "cloth_blocks", "DOF_NAMES"]
+__all__ = ["plot_dof", "render_frame", "render_gif", "require_matplotlib", "springs_outside_grids", "DOF_NAMES"]
 
 #: Names accepted for a coordinate, besides 0, 1, 2.
 DOF_NAMES = {"x": 0, "y": 1, "z": 2}
@@ -91,20 +91,15 @@ def plot_dof(traj, particle_id: int, dof, y_range=None, out_png=None, *, title: 
     return Path(out_png)
 
 
-def cloth_blocks(model) -> list[tuple[int, int, int]]:
-    """Cloth grids of ``model`` as ``(start, nx, ny)``: particle ``(i, j)`` is ``start + j*nx + i``.
-
-    Read from ``model.metadata['cloth_blocks']`` (YAML scenes) or ``['cloth_shape']``
-    (one grid starting at particle 0); grids that do not fit the model are ignored.
-    """
-    md = model.metadata if isinstance(model.metadata, dict) else {}
-    if md.get("cloth_blocks"):
-        blocks = [(int(b[0]), int(b[1]), int(b[2])) for b in md["cloth_blocks"]]
-    elif md.get("cloth_shape") is not None:
-        blocks = [(0, int(md["cloth_shape"][0]), int(md["cloth_shape"][1]))]
-    else:
-        blocks = []
-    return [b for b in blocks if b[0] >= 0 and b[0] + b[1] * b[2] <= model.particle_count]
+def springs_outside_grids(model) -> np.ndarray:
+    """Indices of the springs that do not join two particles of the same cloth grid (drawn as lines
+    when the grids are drawn as surfaces, e.g. a weight hung from a cloth)."""
+    inside = np.zeros(model.spring_count, dtype=bool)
+    ij = model.spring_indices
+    for start, nx, ny in model.cloth_grids:
+        end = start + nx * ny
+        inside |= (ij >= start).all(axis=1) & (ij < end).all(axis=1)
+    return np.flatnonzero(~inside)
 
 
 def _bounds(q: np.ndarray):
@@ -125,15 +120,15 @@ def _draw(ax, model, q: np.ndarray, *, show_springs: bool, show_particles: bool,
 
     artists = []
     n = q.shape[0]
-    blocks = cloth_blocks(model)
-    if surface and blocks:
-        for start, nx, ny in blocks:
+    springs = np.arange(model.spring_count)
+    if surface and model.cloth_grids:
+        for start, nx, ny in model.cloth_grids:
             g = q[start:start + nx * ny].reshape(ny, nx, 3)
             artists.append(ax.plot_surface(g[..., 0], g[..., 1], g[..., 2], color="tab:orange", shade=True,
                                            linewidth=0.2, edgecolor="0.4", alpha=0.95, antialiased=True))
-    elif show_springs and model.spring_count:
-        segs = q[model.spring_indices]
-        lc = Line3DCollection(segs, colors="tab:blue", linewidths=0.8)
+        springs = springs_outside_grids(model)  # the grids' own springs are the surface
+    if show_springs and springs.size:
+        lc = Line3DCollection(q[model.spring_indices[springs]], colors="tab:blue", linewidths=0.8)
         ax.add_collection3d(lc)
         artists.append(lc)
     if show_particles:

@@ -23,6 +23,7 @@ vectorised.
 
 from __future__ import annotations
 
+import inspect
 import math
 import os
 import re
@@ -38,7 +39,7 @@ from ..builder import ModelBuilder
 from ..errors import SceneError
 from ..options import MAX_STEPS
 from ..model import AXES, Model
-from .gallery import BENCHMARK_DT, PIN_MODES, add_cloth_grid
+from .gallery import BENCHMARK_DT, benchmark_cloth_grid
 
 __all__ = ["Scene", "SolverConfig", "PlotSpec", "load_scene", "parse_scene", "DEFAULT_STEPS",
            "MAX_GENERATED_PARTICLES", "MAX_SCENE_BYTES", "MAX_NESTING"]
@@ -77,10 +78,8 @@ _PARTICLE_KEYS = ("pos", "vel", "mass", "fixed", "radius", "drag")
 _SPRING_KEYS = ("particle_ids", "stiffness", "damping", "rest_length")
 _GRAV_KEYS = ("particle_ids", "G", "softening")
 _PLOT_KEYS = ("particle_id", "dof", "y_range")
-_CLOTH_KEYS = ("nx", "ny", "origin", "spacing", "size", "plane", "mass", "total_mass", "drag", "ke", "kd",
-               "ke_y", "kd_y", "ke_shear", "kd_shear", "bending", "ke_bend", "kd_bend", "pin")
-_BENCH_KEYS = ("n", "kd", "ke", "ke_bend", "ke_shear", "total_mass", "pin")
-_CLOTH_PLANES = ("xy", "xz", "yz")
+_CLOTH_KEYS = tuple(p for p in inspect.signature(ModelBuilder.add_cloth_grid).parameters if p != "self")
+_BENCH_KEYS = ("n",) + tuple(p for p in inspect.signature(benchmark_cloth_grid).parameters if p != "n")
 
 
 # libyaml's C parser when PyYAML was built with it (about 10x faster on long lists).
@@ -446,60 +445,41 @@ def _parse_pairs(group: str, items: list, n: int, keys: tuple[str, ...], value_k
     return out
 
 
-def _parse_cloth(path: str, c) -> dict:
+def _grid_size(path: str, v) -> int:
+    if not _is_int(v) or not 2 <= v <= MAX_GENERATED_PARTICLES:
+        raise SceneError(path, f"must be an integer in [2, {MAX_GENERATED_PARTICLES}], got {_show(v)}")
+    return v
+
+
+def _parse_cloth(path: str, c) -> tuple[str, dict, dict]:
+    """A ``cloth:`` block: ``(path, add_cloth_grid keywords, builder path -> YAML path)``.
+
+    The keys are the parameters of :meth:`ModelBuilder.add_cloth_grid`, which validates their values;
+    here only the keys and the grid size (for the particle-count and memory limits) are checked.
+    """
     _mapping(path, c, _CLOTH_KEYS, ("nx", "ny"))
-    kw: dict = {}
-    for key in ("nx", "ny"):
-        v = c[key]
-        if not _is_int(v) or not 2 <= v <= MAX_GENERATED_PARTICLES:
-            raise SceneError(f"{path}.{key}", f"must be an integer in [2, {MAX_GENERATED_PARTICLES}], got {_show(v)}")
-        kw[key] = v
-    if "spacing" in c and "size" in c:
-        raise SceneError(path, "give spacing or size, not both")
-    if "mass" in c and "total_mass" in c:
-        raise SceneError(path, "give mass or total_mass, not both")
-    if "origin" in c:
-        kw["origin"] = [_number(f"{path}.origin[{k}]", x) for k, x in enumerate(_vector(f"{path}.origin", c["origin"]))]
-    if "size" in c:
-        size = _vector(f"{path}.size", c["size"], 2)
-        for k, x in enumerate(size):
-            _number(f"{path}.size[{k}]", x, lo=0.0, strict=True)
-        kw["size"] = tuple(float(x) for x in size)
-    for key in ("spacing", "mass", "total_mass"):
-        if key in c:
-            kw[key] = _number(f"{path}.{key}", c[key], lo=0.0, strict=True)
-    for key in ("drag", "ke", "kd", "ke_y", "kd_y", "ke_shear", "kd_shear", "ke_bend", "kd_bend"):
-        if key in c:
-            kw[key] = _number(f"{path}.{key}", c[key], lo=0.0)
-    if "bending" in c:
-        if type(c["bending"]) is not bool:
-            raise SceneError(f"{path}.bending", f"must be true or false, got {_show(c['bending'])}")
-        kw["bending"] = c["bending"]
-    if "plane" in c:
-        _choice(f"{path}.plane", c["plane"], _CLOTH_PLANES, "plane")
-        kw["plane"] = c["plane"]
-    if "pin" in c:
-        _choice(f"{path}.pin", c["pin"], PIN_MODES, "pin mode")
-        kw["pin"] = c["pin"]
-    return kw
+    kw = dict(c)
+    kw["nx"], kw["ny"] = _grid_size(f"{path}.nx", c["nx"]), _grid_size(f"{path}.ny", c["ny"])
+    return path, kw, {"cloth": path}
 
 
-def _parse_benchmark(c) -> dict:
+def _parse_benchmark(c) -> tuple[str, dict, dict]:
+    """The ``benchmark_cloth:`` block (keys: the parameters of :func:`benchmark_cloth_grid`)."""
     path = "benchmark_cloth"
     _mapping(path, c, _BENCH_KEYS, ("n",))
-    n = c["n"]
-    if not _is_int(n) or not 2 <= n <= MAX_GENERATED_PARTICLES:
-        raise SceneError(f"{path}.n", f"must be an integer in [2, {MAX_GENERATED_PARTICLES}], got {_show(n)}")
-    kd = _number(f"{path}.kd", c.get("kd", 0.0), lo=0.0)
-    ke = _number(f"{path}.ke", c.get("ke", 1e4), lo=0.0)
-    kw = dict(nx=n, ny=n, size=(1.0, 1.0), ke=ke, kd=kd, kd_shear=kd, bending=True, kd_bend=kd,
-              ke_bend=_number(f"{path}.ke_bend", c.get("ke_bend", 1e2), lo=0.0),
-              ke_shear=_number(f"{path}.ke_shear", c.get("ke_shear", ke), lo=0.0),
-              total_mass=_number(f"{path}.total_mass", c.get("total_mass", 1.0), lo=0.0, strict=True))
-    pin = c.get("pin", "edge")
-    _choice(f"{path}.pin", pin, PIN_MODES, "pin mode")
-    kw["pin"] = pin
-    return kw
+    options = dict(c)
+    n = _grid_size(f"{path}.n", options.pop("n"))
+    return path, benchmark_cloth_grid(n, **options), {"cloth.nx": f"{path}.n", "cloth.ny": f"{path}.n",
+                                                      "cloth.kd_shear": f"{path}.kd", "cloth.kd_bend": f"{path}.kd",
+                                                      "cloth.size": path, "cloth.bending": path, "cloth": path}
+
+
+def _renamed(err: SceneError, paths: dict) -> SceneError:
+    """``err`` with its builder path (``cloth.ke``) replaced by the YAML path (``cloth[1].ke``)."""
+    for old in sorted(paths, key=len, reverse=True):
+        if err.path == old or err.path.startswith(old + ".") or err.path.startswith(old + "["):
+            return type(err)(paths[old] + err.path[len(old):], err.message)
+    return err
 
 
 def _parse_plot(p, n: int) -> PlotSpec:
@@ -551,7 +531,7 @@ def parse_scene(doc, *, source: str = "<string>") -> Scene:
         raise SceneError("cloth", f"must be a mapping or a list of mappings, got {_type_name(cloth)}")
     if "benchmark_cloth" in doc:
         cloths.append(_parse_benchmark(doc["benchmark_cloth"]))
-    generated = sum(c["nx"] * c["ny"] for c in cloths)
+    generated = sum(kw["nx"] * kw["ny"] for _, kw, _ in cloths)
     where = "cloth" if "cloth" in doc else "benchmark_cloth"
     if generated > MAX_GENERATED_PARTICLES:
         raise SceneError(where, f"generator blocks would create {generated} particles, more than the limit "
@@ -582,16 +562,13 @@ def parse_scene(doc, *, source: str = "<string>") -> Scene:
         b.add_springs(springs["ids"], springs["stiffness"], springs["damping"], springs["rest_length"])
     if gravs["ids"].shape[0]:
         b.add_gravitationals(gravs["ids"], gravs["G"], gravs["softening"])
-    blocks = []
-    for kw in cloths:
-        kw = dict(kw)
-        nx, ny = kw.pop("nx"), kw.pop("ny")
-        r = add_cloth_grid(b, nx, ny, **kw)
-        blocks.append((r.start, nx, ny))
+    for path, kw, paths in cloths:
+        try:
+            b.add_cloth_grid(**kw)
+        except SceneError as e:
+            raise _renamed(e, paths) from None
     name = doc.get("name") or (Path(source).stem if source != "<string>" else "scene")
     b.metadata.update(name=name, source=source)
-    if blocks:
-        b.metadata.update(cloth_blocks=blocks, cloth_shape=(blocks[0][1], blocks[0][2]))
     model = b.finalize()
     return Scene(model=model, config=cfg, plot=plot, source=source, name=name,
                  metadata={"description": doc.get("description", "")})

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from springsim import ModelBuilder, SceneError
-from springsim.scene.gallery import PIN_MODES, cloth_grid_pairs, cloth_pin_mask
+from springsim.topology import PIN_MODES, cloth_grid_pairs, cloth_pin_mask
 
 
 def test_index_ranges_and_counts():
@@ -86,6 +86,13 @@ def test_cloth_grid_stiffness_families():
     (dict(nx=3, ny=3, mass=1.0, total_mass=1.0), "mass or total_mass"),
     (dict(nx=3, ny=3, spacing=-1.0), "cloth.spacing"),
     (dict(nx=3, ny=3, pin="top"), "pin"),
+    (dict(nx=3, ny=3, ke="1e4"), "cloth.ke: must be a number"),
+    (dict(nx=3, ny=3, ke=-1.0), "cloth.ke: must be >= 0"),
+    (dict(nx=3, ny=3, origin=(0, 0)), "cloth.origin"),
+    (dict(nx=3, ny=3, size=(1.0, 0.0)), r"cloth.size\[1\]: must be > 0"),
+    (dict(nx=3.0, ny=3), "cloth.nx: must be an integer"),
+    (dict(nx=3, ny=3, bending="yes"), "cloth.bending"),
+    (dict(nx=3, ny=3, total_mass=True), "cloth.total_mass: must be a number"),
 ])
 def test_cloth_grid_errors(kwargs, fragment):
     """Invalid generator parameters raise SceneError naming the parameter."""

@@ -5,7 +5,7 @@ import pytest
 
 from springsim import SceneError
 from springsim.scene import PlotSpec, SolverConfig, load_scene, parse_scene
-from springsim.scene.gallery import cloth_grid_pairs
+from springsim.topology import cloth_grid_pairs
 
 HEAD = "solver: {type: implicit_euler, timestep: 0.01}\n"
 TWO = HEAD + "particles:\n  - {pos: [0, 0, 1], mass: 1, fixed: true}\n  - {pos: [0, 0, 0], mass: 2}\n"
@@ -139,7 +139,7 @@ def test_cloth_list_and_benchmark_shortcut():
                    "cloth:\n  - {nx: 2, ny: 2, pin: none}\n  - {nx: 3, ny: 2, size: [2, 1]}\n")
     assert s.model.particle_count == 4 + 6 + 64
     assert s.config.dt == pytest.approx(1 / 60)
-    assert s.model.metadata["cloth_shape"] == (2, 2)
+    assert s.model.cloth_grids == ((0, 2, 2), (4, 3, 2), (10, 8, 8))
 
 
 def test_huge_cloth_generator():
@@ -243,8 +243,8 @@ BAD = [
     (HEAD + "cloth: {nx: 1, ny: 4}", "cloth.nx: must be an integer in [2, 50000000], got 1"),
     (HEAD + "cloth: {nx: 3}", "cloth: missing required key 'ny'"),
     (HEAD + "cloth: [{nx: 3, ny: 3}, {nx: 3, ny: 3, ke: -1}]", "cloth[1].ke: must be >= 0"),
-    (HEAD + "cloth: {nx: 3, ny: 3, pin: top}", "cloth.pin: unknown pin mode 'top'; choose one of none"),
-    (HEAD + "cloth: {nx: 3, ny: 3, plane: ab}", "cloth.plane: unknown plane"),
+    (HEAD + "cloth: {nx: 3, ny: 3, pin: top}", "cloth.pin: must be one of none, edge, corners, ends, got 'top'"),
+    (HEAD + "cloth: {nx: 3, ny: 3, plane: ab}", "cloth.plane: must be one of xy, xz, yz, got 'ab'"),
     (HEAD + "cloth: {nx: 3, ny: 3, spacing: 0.1, size: [1, 1]}", "cloth: give spacing or size"),
     (HEAD + "cloth: {nx: 3, ny: 3, size: [1, 0]}", "cloth.size[1]: must be > 0"),
     (HEAD + "cloth: {nx: 3, ny: 3, mass: 0}", "cloth.mass: must be > 0"),
