@@ -165,10 +165,5 @@ class State:
     def copy(self) -> "State":
         return State(self.particle_q.copy(), self.particle_qd.copy())
 
-    def assign(self, other: "State") -> None:
-        """Copy ``other``'s values into this state's arrays."""
-        self.particle_q[...] = other.particle_q
-        self.particle_qd[...] = other.particle_qd
-
     def is_finite(self) -> bool:
         return bool(np.isfinite(self.particle_q).all() and np.isfinite(self.particle_qd).all())

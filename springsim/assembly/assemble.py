@@ -126,7 +126,6 @@ class SystemAssembler:
     """
 
     def __init__(self, model, terms):
-        t0 = time.perf_counter()
         self.model = model
         self.terms = list(terms)
         n = model.particle_count
@@ -162,10 +161,7 @@ class SystemAssembler:
         self._mass[self.pattern.diagonal_positions] = self._free_mass[:, None, None] * np.eye(3)
         self._values = np.empty((self.value_count, 3, 3))
         self._work = {id(term): {} for term in self.terms}  # per-term temporaries, kept between assemblies
-        damped = any(getattr(t, "damped", np.zeros(0)).size for t in self.terms)
-        self._nonsymmetric_exact = damped
         self.matrix = SystemMatrix(self.pattern.empty_bsr(), self.pattern)
-        self.symbolic_time_s = time.perf_counter() - t0
         self.last_time_s = 0.0
 
     @property
@@ -218,7 +214,7 @@ class SystemAssembler:
             _scatter_add(self._scatter, V.reshape(-1, 9), data.reshape(-1, 9))
         m = self.matrix
         m.mode = mode
-        m.symmetric = mode != "exact" or not self._nonsymmetric_exact
+        m.symmetric = all(t.jacobian_symmetric(mode) for t in self.terms)
         m.positions = q[self.free]
         m.version += 1
         self.last_time_s = time.perf_counter() - t0

@@ -65,13 +65,6 @@ class BlockLayout:
         k = index.shape[0]
         return cls(index, index, np.arange(k, dtype=np.int64), np.ones(k), k)
 
-    @classmethod
-    def triplets(cls, rows: np.ndarray, cols: np.ndarray) -> "BlockLayout":
-        """Layout of general COO triplets, one value block each."""
-        rows = np.asarray(rows, dtype=np.int64)
-        k = rows.shape[0]
-        return cls(rows, np.asarray(cols, dtype=np.int64), np.arange(k, dtype=np.int64), np.ones(k), k)
-
 
 @dataclass(frozen=True, eq=False)
 class Blocks:
@@ -144,6 +137,12 @@ class ForceTerm(ABC):
         """
         return None, None
 
+    def jacobian_symmetric(self, mode: str) -> bool:
+        """Whether this term's contribution ``-a dF/dq - b dF/dqd`` to the system matrix is symmetric
+        in Jacobian ``mode`` (every ``a``, ``b``). Terms with a non-symmetric derivative override it;
+        the assembler declares its matrix symmetric only when every term is."""
+        return True
+
     def potential_energy(self, q: np.ndarray) -> float:
         """Potential energy [J] at ``q`` (0 for dissipative terms)."""
         return 0.0
@@ -157,10 +156,6 @@ class ForceTerm(ABC):
         """
         return 0.0
 
-    @property
-    def item_count(self) -> int:
-        """Number of items (pairs, particles) this term evaluates."""
-        return 0
 
 
 def scratch(work: dict | None, name: str, shape: tuple) -> np.ndarray:

@@ -30,10 +30,6 @@ class ForceDrag(ForceTerm):
             return None
         return cls(index, model.particle_drag[index])
 
-    @property
-    def item_count(self) -> int:
-        return self.index.shape[0]
-
     def eval_force(self, q, qd, f_out):
         f_out[self.index] -= self.beta[:, None] * qd[self.index]
 

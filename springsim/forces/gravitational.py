@@ -58,10 +58,6 @@ class ForceGravitational(ForceTerm):
         return cls(pairs, model.gravitational_G[keep] * m[pairs[:, 0]] * m[pairs[:, 1]],
                    model.gravitational_softening[keep])
 
-    @property
-    def item_count(self) -> int:
-        return self.pairs.shape[0]
-
     def eval_force(self, q, qd, f_out):
         d, l, n, near = pair_geometry(q, self.pairs, self.eps)
         ls = np.maximum(l, self.eps)

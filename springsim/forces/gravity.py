@@ -25,10 +25,6 @@ class ForceGravity(ForceTerm):
             return None
         return cls(model.particle_mass, model.gravity_vector)
 
-    @property
-    def item_count(self) -> int:
-        return self.mass.shape[0]
-
     def eval_force(self, q, qd, f_out):
         f_out += self._force
 

@@ -66,9 +66,9 @@ class ForceSpring(ForceTerm):
         return cls(model.spring_indices[keep], model.spring_stiffness[keep], model.spring_damping[keep],
                    model.spring_rest_length[keep], model.pair_epsilon)
 
-    @property
-    def item_count(self) -> int:
-        return self.pairs.shape[0]
+    def jacobian_symmetric(self, mode: str) -> bool:
+        # the damping force's position derivative (dF/dq of eq. 8) is not symmetric; the other modes drop it
+        return mode != "exact" or self.damped.size == 0
 
     def _elastic_coef(self, l, near):
         """``1 - l0/l`` with ``l`` clamped at eps (the force is ``-k * coef * d``)."""
