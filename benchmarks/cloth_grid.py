@@ -68,7 +68,7 @@ def run(n, steps, integrator, solver, rtol, jacobian, warmup, solver_options=Non
         warmup_step_s=[r["step_s"] for r in rows[:warmup]], build_s=build_s, symbolic_s=symbolic_s,
         fallbacks=sum(len(r["fallbacks"]) for r in rows),
         peak_rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
-        solver_info={k: v for k, v in getattr(getattr(integ.solver, "amg", None), "describe", dict)().items()},
+        solver_info={k: v for k, v in getattr(getattr(integ.solver, "preconditioner", None), "describe", dict)().items()},
     )
     return summary, s0
 

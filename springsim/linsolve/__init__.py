@@ -1,21 +1,29 @@
-"""Linear solvers, registered by name. Adding one is a module plus one line in :data:`LINEAR_SOLVERS`."""
+"""Linear solvers, registered by name.
+
+``dense`` and ``direct`` factor the matrix; ``cg``, ``amg-cg`` and ``amg-gmres`` are presets of
+:class:`LinearSolverIterative` (a Krylov method, a preconditioner and a fallback solver); ``auto``
+chooses among them by size and symmetry. Adding a solver is a module plus one line in
+:data:`LINEAR_SOLVERS`; adding a Krylov method or a preconditioner is a class plus one line in
+:data:`~springsim.linsolve.krylov.KRYLOV_METHODS` or
+:data:`~springsim.linsolve.preconditioners.PRECONDITIONERS`.
+"""
 
 from __future__ import annotations
 
-from ..errors import SceneError
 from ._base import BACKWARD_TOL, LinearSolver, LinearSolveResult, backward_error, relative_residual
-from .amg_cg import LinearSolverAMGCG
 from .auto import LinearSolverAuto
-from .cg import LinearSolverCG
 from .dense import LinearSolverDense
 from .direct import LinearSolverDirect
-from .krylov import LinearSolverAMGGMRES
+from .iterative import LinearSolverAMGCG, LinearSolverAMGGMRES, LinearSolverCG, LinearSolverIterative
+from .krylov import CG, GMRES, KRYLOV_METHODS
+from .preconditioners import PRECONDITIONERS, Preconditioner
 
-__all__ = ["LINEAR_SOLVERS", "LinearSolver", "LinearSolverAMGCG", "LinearSolverAMGGMRES", "LinearSolverAuto",
-           "LinearSolverCG", "LinearSolveResult", "LinearSolverDense", "LinearSolverDirect",
-           "make_linear_solver", "relative_residual", "backward_error", "BACKWARD_TOL"]
+__all__ = ["LINEAR_SOLVERS", "LinearSolver", "LinearSolveResult", "LinearSolverDense", "LinearSolverDirect",
+           "LinearSolverIterative", "LinearSolverCG", "LinearSolverAMGCG", "LinearSolverAMGGMRES", "LinearSolverAuto",
+           "CG", "GMRES", "KRYLOV_METHODS", "Preconditioner", "PRECONDITIONERS", "make_linear_solver",
+           "relative_residual", "backward_error", "BACKWARD_TOL"]
 
-#: Registry: name -> class.
+#: Registry: name -> solver class (the iterative ones are presets of :class:`LinearSolverIterative`).
 LINEAR_SOLVERS: dict[str, type[LinearSolver]] = {
     "dense": LinearSolverDense,
     "direct": LinearSolverDirect,
@@ -27,12 +35,20 @@ LINEAR_SOLVERS: dict[str, type[LinearSolver]] = {
 
 
 def make_linear_solver(name: str | LinearSolver, **options) -> LinearSolver:
-    """Instantiate a registered solver by name (instances pass through unchanged)."""
+    """Instantiate a registered solver by name with ``options`` (an instance passes through unchanged).
+
+    Raises
+    ------
+    ValueError
+        For an unknown name, listing the registered ones.
+    """
     if isinstance(name, LinearSolver):
+        if options:
+            raise TypeError(f"solver options {sorted(options)} need a solver name, not an instance")
         return name
     try:
         cls = LINEAR_SOLVERS[name]
-    except KeyError:
-        raise SceneError("solver.linear_solver",
-                         f"unknown linear solver {name!r}; choose one of {', '.join(LINEAR_SOLVERS)}") from None
+    except (KeyError, TypeError):
+        raise ValueError(f"linear_solver: unknown linear solver {name!r:.60}; choose one of "
+                         f"{', '.join(LINEAR_SOLVERS)}") from None
     return cls(**options)

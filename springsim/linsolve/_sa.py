@@ -29,10 +29,10 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.linalg import eigvalsh_tridiagonal
 
-__all__ = ["block_diagonal", "lanczos_rho", "smoothed_aggregation_levels"]
+__all__ = ["bsr_block_diagonal", "lanczos_rho", "smoothed_aggregation_levels"]
 
 
-def block_diagonal(A: sp.bsr_matrix) -> np.ndarray:
+def bsr_block_diagonal(A: sp.bsr_matrix) -> np.ndarray:
     """The diagonal blocks of a square BSR matrix with square blocks, (nb, bs, bs) (zero where absent)."""
     bs = A.blocksize[0]
     nb = A.shape[0] // bs
@@ -146,7 +146,7 @@ def smoothed_aggregation_levels(A: sp.bsr_matrix, B: np.ndarray, *, theta: float
         if agg.shape[1] == 0 or agg.shape[1] >= nb:  # nothing (left) to coarsen
             break
         T, Bc = fit_candidates(agg, Bk)
-        D = block_diagonal(Ak)
+        D = bsr_block_diagonal(Ak)
         Dinv = np.linalg.inv(D)
         # the smoothers' block inverse too: pyamg's ``get_block_diag`` returns ``A.block_D_inv`` when
         # set, so each level inverts its diagonal once instead of three times (n = 256: 0.05 s a setup)

@@ -35,9 +35,8 @@ the ``spd`` mode on larger ones, where CG needs it.
 from __future__ import annotations
 
 from ._base import LinearSolver
-from .amg_cg import LinearSolverAMGCG
 from .direct import LinearSolverDirect
-from .krylov import LinearSolverAMGGMRES
+from .iterative import LinearSolverAMGCG, LinearSolverAMGGMRES
 
 __all__ = ["LinearSolverAuto", "DIRECT_MAX_DOFS"]
 

@@ -153,7 +153,7 @@ def test_backward_block_gauss_seidel_matches_pyamg(bs):
     import scipy.sparse as sp
     from pyamg.relaxation.relaxation import block_gauss_seidel
 
-    from springsim.linsolve._amg import BackwardBlockGaussSeidel
+    from springsim.linsolve.amg import BackwardBlockGaussSeidel
 
     rng = np.random.default_rng(bs)
     nb = 40
@@ -172,9 +172,9 @@ def test_backward_block_gauss_seidel_matches_pyamg(bs):
 
 def test_amg_reuse_cooldown_backs_off_and_resets():
     """Each stale rebuild doubles the cooldown (capped); a successful reuse resets it."""
-    from springsim.linsolve._amg import AMGHierarchy
+    from springsim.linsolve.amg import AMGPreconditioner
 
-    h = AMGHierarchy(cooldown=2, max_cooldown=8)
+    h = AMGPreconditioner(cooldown=2, max_cooldown=8)
     skips = []
     for _ in range(4):
         h.invalidate(stale=True)
@@ -206,3 +206,33 @@ def test_direct_reports_the_fill_of_its_factors():
     res = make_linear_solver("direct").solve(A, b)
     lu = spla.splu(A.tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
     assert res.info["nnz_LU"] == lu.L.nnz + lu.U.nnz > A.bsr.nnz
+
+
+@pytest.mark.parametrize("krylov, preconditioner", [("cg", "none"), ("cg", "jacobi"), ("gmres", "block-jacobi"),
+                                                    ("gmres", "none"), ("cg", "amg")])
+def test_composed_iterative_solver(krylov, preconditioner):
+    """Any Krylov method with any preconditioner solves the SPD system to its tolerance; the presets are these
+    compositions (amg-cg is CG + AMG, cg is CG + block Jacobi)."""
+    from springsim.linsolve import LinearSolverIterative
+
+    A, b, D = _cached("spd")
+    res = LinearSolverIterative(krylov, preconditioner, rtol=RTOL, fallback="none", maxiter=5000).solve(A, b)
+    assert res.converged and res.fallback is None and res.iterations > 0
+    assert np.linalg.norm(D @ res.x - b) <= 10 * RTOL * np.linalg.norm(b)
+    amg_cg, cg = make_linear_solver("amg-cg"), make_linear_solver("cg")
+    assert amg_cg.krylov.name == "cg" and amg_cg.preconditioner.name == "amg"
+    assert cg.krylov.name == "cg" and cg.preconditioner.name == "block-jacobi"
+
+
+def test_fallback_is_an_object():
+    """The fallback is any solver passed in: here dense answers for CG, which breaks down on an indefinite matrix."""
+    from springsim.linsolve import LinearSolverDense, LinearSolverIterative
+
+    A, b, D = _cached("indefinite")
+    res = LinearSolverIterative("cg", "block-jacobi", rtol=RTOL, fallback=LinearSolverDense()).solve(A, b)
+    assert res.converged and res.method == "iterative->dense" and res.fallback.startswith("iterative: ")
+    np.testing.assert_allclose(D @ res.x, b, rtol=0, atol=1e-9 * np.abs(b).max())
+    with pytest.raises(ValueError, match="unknown method"):
+        LinearSolverIterative("bicg")
+    with pytest.raises(ValueError, match="unknown name"):
+        LinearSolverIterative("cg", "ilu")

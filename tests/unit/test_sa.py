@@ -9,8 +9,8 @@ import scipy.sparse as sp
 from springsim.assembly import SystemAssembler
 from springsim.forces import make_force_terms
 from springsim.linsolve import make_linear_solver
-from springsim.linsolve._amg import AMGHierarchy, rigid_body_modes
-from springsim.linsolve._sa import block_diagonal, lanczos_rho, smoothed_aggregation_levels
+from springsim.linsolve.amg import AMGPreconditioner, rigid_body_modes
+from springsim.linsolve._sa import bsr_block_diagonal, lanczos_rho, smoothed_aggregation_levels
 from springsim.scene.gallery import benchmark_cloth
 
 
@@ -27,7 +27,7 @@ def _spd_system(n=12, seed=3):
 
 def test_block_diagonal_and_lanczos_rho_match_dense():
     _, M, _ = _spd_system()
-    D = block_diagonal(M)
+    D = bsr_block_diagonal(M)
     dense = M.toarray()
     bs = 3
     for i in range(0, M.shape[0] // bs, 7):
@@ -45,7 +45,7 @@ def test_lanczos_rho_reports_breakdown_on_indefinite_matrix():
     _, M, _ = _spd_system()
     M = M.copy()
     M.data *= -1.0  # negative definite: the D inner product is not one
-    D = block_diagonal(M)
+    D = bsr_block_diagonal(M)
     assert np.isnan(lanczos_rho(M, D, np.linalg.inv(D)))
 
 
@@ -93,6 +93,6 @@ def test_non_spd_matrix_falls_back_to_pyamg_setup():
     """An indefinite matrix breaks the Lanczos estimate; the hierarchy is then pyamg's."""
     A, _, _ = _spd_system()
     A.bsr.data *= -1.0
-    h = AMGHierarchy()
-    precond, _, fresh = h.preconditioner(A)
+    h = AMGPreconditioner()
+    precond, _, fresh = h.setup(A)
     assert fresh and callable(precond) and h._aggregates is None

@@ -1,55 +1,33 @@
-"""Smoothed-aggregation AMG hierarchies for the implicit system, and their reuse.
+"""``amg``: smoothed-aggregation algebraic multigrid (pyamg) as a preconditioner, with hierarchy reuse.
 
-Choices, measured on the benchmark cloth at n = 64 (12,096 DOFs), linearized implicit
-Euler, step 20 of the fall (stiff and deformed, ``h^2 k / m ~ 1e4``), CG to 1e-6
-(``benchmarks/cloth_grid.py``; see docs/solvers.md for the tables):
+One V-cycle of a smoothed-aggregation hierarchy (Vanek, Mandel and Brezina 1996) built for the
+implicit system's 3x3 block structure:
 
-* near-null space: the six rigid-body modes at the current positions (3 translations
-  + 3 rotations) need 10 CG iterations; the three translations (pyamg's default for
-  BSR 3x3, ``B=None``) 22; scalar aggregation (CSR, one constant) 239. Rotations are
-  near-null for springs (a rotated cloth has no elastic energy), as Tamstorf, Jones and
-  McCormick (2015) argue for cloth; so ``near_nullspace="rigid"`` is the default.
-* format: BSR 3x3 aggregates the three components of a particle together; with the
-  same six modes CSR needed 49 iterations against 10 for BSR.
-* smoother: block Gauss-Seidel on the 3x3 blocks, one forward sweep before and one
-  backward sweep after (a symmetric V-cycle, as CG needs): 20 iterations against 16 for
-  pyamg's symmetric sweeps, at half the smoothing work; Chebyshev degree 3 took 184
-  (its eigenvalue bound is poor on these stretched spectra). The backward sweep runs as
-  a forward sweep on a reversed copy of each level's matrix
-  (:class:`BackwardBlockGaussSeidel`): pyamg's backward kernel is twice as slow as its
-  forward one (n = 256: one V-cycle 85 ms -> 68 ms).
-* prolongator and strength: Jacobi-smoothed aggregation (``omega = 4/3``) with
-  symmetric strength ``theta = 0.1`` (drops the weak bending links from the
-  aggregates). The Jacobi step is weighted by the inverse 3x3 block diagonal
-  (``weighting="block"``) rather than the scalar diagonal: measured at step 15 of the
-  fall, 8 CG iterations instead of 13-14 at n = 128 and 256, and a cheaper setup
-  (n = 256: 1.7 s instead of 2.2 s; its spectral-radius estimate converges faster);
-  ``weighting="local"`` (no eigenvalue estimate) needed 15, filtering the smoothing by
-  the strength graph 13, ``theta = 0.25`` made aggregates too long for CG (300+). Unsmoothed aggregation (``smooth=None``, ``theta = 0``) costs 0.04 s of
-  setup instead of 0.08 s at n = 64, but its iteration count grows with the grid
-  (24, 35, 64 iterations at n = 64, 128, 256) while the smoothed one stays at 12-13
-  (n = 128, 256): at n = 256 4.3 s per step against 6.8 s. pyamg's candidate
-  improvement (``improve_candidates``, 4 Gauss-Seidel sweeps on each of the 6
-  candidates) is off: the rigid modes are already the right ones (16 vs 17
-  iterations, setup halved).
-* coarse level: pyamg counts ``max_coarse`` in block rows (6x6 blocks below the finest
-  level), so the default 50 gives a coarsest level of at most ~300 DOFs, solved by a
-  dense pseudo-inverse (``pinv``): the coarse operator is exactly singular on the flat
-  cloth (rotation candidates with zero energy), where sparse LU fails.
-* reuse: on the falling cloth a hierarchy one time step old already needs 2-5x the
-  iterations of a fresh one (n = 32: 22, 59, 134, 245 iterations for hierarchies 1-4
-  steps old, against 9-14 fresh), while a setup costs about three iterations. A
-  Galerkin refresh with the old prolongator was worse still. So: the hierarchy is reused
-  for repeated solves with the same matrix and across matrices while a solve stays
-  within ``rebuild_factor * baseline + rebuild_slack`` iterations (``baseline`` = count
-  right after the build); a solve that exceeds it (or breaks down) is stopped there,
-  the hierarchy rebuilt and the solve continued from the iterate reached. After such a
-  stale rebuild the next ``cooldown`` matrices get a fresh hierarchy right away (no
-  wasted attempt), then reuse is tried again. The cooldown doubles after every stale
-  rebuild (up to ``max_cooldown``) and returns to ``cooldown`` once a reused hierarchy
-  serves a new matrix within budget, so a fast-moving phase wastes one attempt per
-  doubling instead of one every ``cooldown`` steps (n = 128 fall, steps 1-30: 2 wasted
-  attempts instead of 6). In quasi-static phases (slow motion) reuse holds for many steps.
+* **near-null space**: the six rigid-body modes at the current positions (three translations,
+  three infinitesimal rotations about the centroid); rotations cost a spring system no elastic
+  energy, so they are near-null for it (Tamstorf, Jones and McCormick 2015). The three
+  translations alone (``near_nullspace="translations"``) need about twice the iterations.
+* **format**: BSR with 3x3 blocks, so that the three components of a particle are aggregated
+  together (``fmt="csr"`` aggregates scalar unknowns).
+* **smoothing**: block Gauss-Seidel on the 3x3 blocks, one forward sweep before and one backward
+  sweep after, a symmetric V-cycle as CG needs. The backward sweep runs as a forward sweep on a
+  reversed copy of each level's matrix (:class:`BackwardBlockGaussSeidel`): pyamg's backward
+  kernel is about half as fast as its forward one.
+* **prolongation**: Jacobi-smoothed aggregation (``omega = 4/3`` over the spectral radius of
+  ``D^-1 A`` with the 3x3 block diagonal ``D``), symmetric strength ``theta = 0.1``; for
+  symmetric systems the setup of :mod:`springsim.linsolve._sa` (a short Lanczos estimate of the
+  spectral radius, aggregates kept per matrix pattern), else pyamg's own setup.
+* **coarsest level**: at most ``max_coarse`` block rows, solved by a dense pseudo-inverse (the
+  coarse operator of a flat cloth is exactly singular in its rotation modes).
+* **reuse**: a hierarchy is kept for repeated solves with the same matrix and tried on the next
+  matrices with the same pattern while a solve stays within ``rebuild_factor * baseline +
+  rebuild_slack`` iterations (``baseline``: the count right after the build). A solve that exceeds
+  it (or breaks down) is stopped, the hierarchy rebuilt and the solve continued from the iterate
+  reached. After such a stale rebuild the next ``cooldown`` matrices get fresh hierarchies at once;
+  the cooldown doubles after every stale rebuild (up to ``max_cooldown``) and resets when reuse
+  succeeds, so a fast-moving phase wastes one attempt per doubling.
+
+The measurements behind these choices are in docs/solvers.md.
 """
 
 from __future__ import annotations
@@ -58,10 +36,12 @@ import time
 
 import numpy as np
 
+from .preconditioners import Preconditioner
+
+__all__ = ["AMGPreconditioner", "BackwardBlockGaussSeidel", "rigid_body_modes", "translation_modes"]
+
 #: Seed of NumPy's global random state during a pyamg setup (restored afterwards).
 _PYAMG_SEED = 20_240_611
-
-__all__ = ["AMGHierarchy", "AMGKrylovSolver", "BackwardBlockGaussSeidel", "rigid_body_modes", "translation_modes"]
 
 
 def rigid_body_modes(positions: np.ndarray) -> np.ndarray:
@@ -120,40 +100,40 @@ class BackwardBlockGaussSeidel:
         x[...] = xr.reshape(self.nb, self.bs)[::-1].ravel()
 
 
-class AMGHierarchy:
-    """Builds a pyamg smoothed-aggregation hierarchy and decides when to rebuild it.
+class AMGPreconditioner(Preconditioner):
+    """Smoothed-aggregation AMG V-cycle with hierarchy reuse (``"amg"``; module docstring).
 
     Parameters
     ----------
     near_nullspace : {"rigid", "translations"}
-        Candidate vectors ``B`` (see the module notes).
+        Candidate vectors ``B``: six rigid-body modes at the current positions, or the three translations.
     fmt : {"bsr", "csr"}
         Matrix format handed to pyamg.
     symmetry : {"hermitian", "nonsymmetric"}
-        pyamg's symmetry flag (``"nonsymmetric"`` for GMRES-type solvers).
+        pyamg's symmetry flag (``"nonsymmetric"`` for GMRES-type methods).
     smoother : str
         pyamg relaxation for pre- and post-smoothing (symmetric sweep).
     max_coarse : int
         Coarsest level size in block rows (pyamg's convention).
     rebuild_factor, rebuild_slack : float, int
-        Stale when a solve needs more than ``rebuild_factor * baseline + rebuild_slack``
-        iterations, ``baseline`` being the count of the first solve after the last build.
+        Stale when a solve needs more than ``rebuild_factor * baseline + rebuild_slack`` iterations.
     reuse : bool
-        Keep the hierarchy across matrices with the same pattern (False: rebuild for every
-        new matrix).
-    cooldown : int
-        After a stale rebuild, build afresh for this many new matrices before trying reuse
-        again; doubled after each further stale rebuild, reset when reuse succeeds.
-    max_cooldown : int
-        Upper bound of the doubled cooldown.
+        Keep the hierarchy across matrices with the same pattern (False: rebuild for every new matrix).
+    cooldown, max_cooldown : int
+        Fresh hierarchies after a stale rebuild before reuse is tried again, and its doubled maximum.
     sa_options : dict, optional
-        Extra keywords for :func:`pyamg.smoothed_aggregation_solver`.
+        Extra keywords for :func:`pyamg.smoothed_aggregation_solver` (then pyamg's setup is used).
     """
+
+    name = "amg"
 
     def __init__(self, *, near_nullspace: str = "rigid", fmt: str = "bsr", symmetry: str = "hermitian",
                  smoother: str = "block_gauss_seidel", max_coarse: int = 50, rebuild_factor: float = 2.0,
                  rebuild_slack: int = 4, reuse: bool = True, cooldown: int = 4, max_cooldown: int = 64,
                  sa_options: dict | None = None):
+        super().__init__()
+        if symmetry not in ("hermitian", "nonsymmetric"):
+            raise ValueError(f"symmetry must be 'hermitian' or 'nonsymmetric', got {symmetry!r}")
         if near_nullspace not in ("rigid", "translations"):
             raise ValueError(f"near_nullspace must be 'rigid' or 'translations', got {near_nullspace!r}")
         if fmt not in ("bsr", "csr"):
@@ -182,7 +162,7 @@ class AMGHierarchy:
         self._precond = None
 
     def invalidate(self, stale: bool = False) -> None:
-        """Forget the hierarchy (the next :meth:`preconditioner` call rebuilds); ``stale``
+        """Forget the hierarchy (the next :meth:`setup` rebuilds); ``stale``
         also starts the cooldown during which new matrices get fresh hierarchies."""
         self.ml = None
         self.key = None
@@ -192,7 +172,7 @@ class AMGHierarchy:
             self._skip = self._next_cooldown
             self._next_cooldown = min(2 * max(self._next_cooldown, 1), self.max_cooldown)
 
-    def preconditioner(self, A):
+    def setup(self, A):
         """``(apply, setup_s, fresh)`` for the system ``A``: a V-cycle ``r -> M^-1 r``.
 
         ``fresh`` is True when the hierarchy was (re)built for this call.
@@ -319,66 +299,5 @@ class AMGHierarchy:
                 "operator_complexity": float(self.ml.operator_complexity()), "builds": self.builds,
                 "stale_rebuilds": self.stale_rebuilds}
 
-
-class AMGKrylovSolver:
-    """Mixin for the AMG-preconditioned Krylov solvers (``amg-cg``, ``amg-gmres``): their
-    shared options, the hierarchy (``self.amg``) and the stale-hierarchy protocol.
-
-    Subclasses (placed before :class:`~springsim.linsolve._krylov.IterativeSolver` in the
-    bases) set ``amg_symmetry`` and implement ``_krylov(A, b, precond, x0, maxiter) -> (x, KrylovInfo)``;
-    their ``_solve`` calls :meth:`_amg_solve`.
-
-    Parameters
-    ----------
-    near_nullspace : {"rigid", "translations"}
-        AMG candidate vectors: six rigid-body modes at the current positions, or the
-        three translations.
-    fmt : {"bsr", "csr"}
-        Matrix format given to pyamg.
-    smoother : str
-        pyamg smoother (default symmetric ``"block_gauss_seidel"``).
-    reuse : bool
-        Reuse the hierarchy across solves (False: rebuild on every solve).
-    rebuild_factor, rebuild_slack, cooldown, max_cooldown
-        Stale-hierarchy signal and policy, see :class:`AMGHierarchy`.
-    max_coarse : int
-        Coarsest AMG level size in block rows (pyamg's convention).
-    sa_options : dict, optional
-        Extra keywords for :func:`pyamg.smoothed_aggregation_solver`.
-    """
-
-    amg_symmetry = "hermitian"
-
-    def __init__(self, *, near_nullspace: str = "rigid", fmt: str = "bsr", smoother: str = "block_gauss_seidel",
-                 reuse: bool = True, rebuild_factor: float = 2.0, rebuild_slack: int = 4, max_coarse: int = 50,
-                 cooldown: int = 4, max_cooldown: int = 64, sa_options: dict | None = None, **kw):
-        super().__init__(**kw)
-        self.amg = AMGHierarchy(near_nullspace=near_nullspace, fmt=fmt, symmetry=self.amg_symmetry,
-                                smoother=smoother, max_coarse=max_coarse, rebuild_factor=rebuild_factor,
-                                rebuild_slack=rebuild_slack, reuse=reuse, cooldown=cooldown,
-                                max_cooldown=max_cooldown, sa_options=sa_options)
-
-    def _amg_solve(self, A, b, x0, maxiter: int):
-        """Krylov solve with the current (or a fresh) hierarchy; a reused hierarchy that
-        exceeds its iteration budget or breaks down is rebuilt and the solve continued
-        from the iterate reached. Returns the solver's result (fallback applied)."""
-        precond, setup_s, fresh = self.amg.preconditioner(A)
-        t0 = time.perf_counter()
-        x, info = self._krylov(A, b, precond, x0, self.amg.budget(maxiter, fresh))
-        rebuilt = False
-        if not fresh and info.breakdown is not None:  # stale: too many iterations, or breakdown
-            self.amg.invalidate(stale=True)
-            precond = None  # drop the old hierarchy before the new one is built (peak memory)
-            precond, s2, fresh = self.amg.preconditioner(A)
-            setup_s += s2
-            t0 += s2
-            restart = x if (np.all(np.isfinite(x)) and info.residual < 1.0) else x0
-            x, info2 = self._krylov(A, b, precond, restart, maxiter)
-            self.amg.record(info2.iterations, fresh, info2.breakdown is None)
-            info2.iterations += info.iterations
-            info, rebuilt = info2, True
-        else:
-            self.amg.record(info.iterations, fresh, info.breakdown is None)
-        solve_s = time.perf_counter() - t0
-        details = dict(self.amg.describe(), rebuilt=fresh, stale_rebuild=rebuilt, warm_start=x0 is not None)
-        return self._finish(A, b, x, info, setup_s, solve_s, details)
+    def default_maxiter(self, n: int) -> int:
+        return 500
