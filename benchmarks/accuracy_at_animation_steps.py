@@ -52,7 +52,7 @@ from pathlib import Path
 import numpy as np
 
 from springsim import ModelBuilder, make_integrator, simulate
-from springsim._argtypes import positive_float
+from springsim.cli.argtypes import positive_float
 from springsim.adaptive import simulate_adaptive
 from springsim.forces import make_force_terms
 from springsim.integrators import ImplicitIntegrator, StepStats

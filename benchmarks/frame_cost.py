@@ -313,9 +313,9 @@ class Run:
     stats: list = field(default_factory=list)
 
     def __post_init__(self):
-        from springsim.integrators import make_integrator
+        from springsim.integrators import INTEGRATORS, make_integrator
 
-        opts = dict(self.options)
+        opts = {k: v for k, v in self.options.items() if k not in INTEGRATORS[self.method].unused_options}
         so = dict(opts.pop("solver_options", {}) or {})
         if self.solver in ("direct", "dense"):
             so.pop("rtol", None)

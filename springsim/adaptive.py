@@ -9,7 +9,8 @@ the driver measures the local error in the weighted RMS norm over free DOFs::
 
 over positions and velocities (``error_on="qv"``, the default: the global position error
 then scales with the tolerance) or position components only (``error_on="q"``; cheaper, but
-the position error alone under-reports the velocity error that later becomes position error). A step is accepted when ``err <= 1`` and the
+the position error alone under-reports the velocity error that later becomes position error).
+A step is accepted when ``err <= 1`` and the
 next step is::
 
     h_new = h min(grow, max(shrink, safety err^(-1/(p+1))))        p = integrator order (2)
@@ -125,19 +126,19 @@ def simulate_adaptive(model, integrator, t_end: float, *, frame_dt: float | None
     """
     t_end = float(t_end)
     if not (np.isfinite(t_end) and t_end > 0):
-        raise SceneError("simulation.duration", f"must be finite and > 0, got {t_end}")
+        raise SceneError("t_end", f"must be finite and > 0, got {t_end}")
     if not time_rtol >= 0 or not time_atol >= 0 or (time_rtol == 0 and time_atol == 0):
-        raise SceneError("solver.time_rtol", f"time_rtol and time_atol must be >= 0 and not both 0, got "
+        raise SceneError("time_rtol", f"time_rtol and time_atol must be >= 0 and not both 0, got "
                                              f"{time_rtol}, {time_atol}")
     if error_on not in ("q", "qv"):
         raise ValueError(f"error_on must be 'q' or 'qv', got {error_on!r}")
     if t_frames is not None:
         t_frames = np.asarray(t_frames, dtype=np.float64).ravel()
         if t_frames.size and (np.any(np.diff(t_frames) <= 0) or t_frames[0] <= 0 or t_frames[-1] > t_end):
-            raise SceneError("simulation.t_frames", "must be increasing and in (0, t_end]")
+            raise SceneError("t_frames", "must be increasing and in (0, t_end]")
     elif frame_dt is not None:
         if not frame_dt > 0:
-            raise SceneError("simulation.frame_dt", f"must be > 0, got {frame_dt}")
+            raise SceneError("frame_dt", f"must be > 0, got {frame_dt}")
         k = int(np.floor(t_end / frame_dt + 1e-9))
         t_frames = frame_dt * np.arange(1, k + 1)
         if t_frames.size == 0 or t_end - t_frames[-1] > 1e-12 * t_end:
@@ -148,7 +149,7 @@ def simulate_adaptive(model, integrator, t_end: float, *, frame_dt: float | None
     if h_max is None:
         h_max = t_end / 10
     if not (0 < h_min <= h_max):
-        raise SceneError("solver.h_min", f"need 0 < h_min <= h_max, got {h_min}, {h_max}")
+        raise SceneError("h_min", f"need 0 < h_min <= h_max, got {h_min}, {h_max}")
     h = min(h_max, 1e-3) if h0 is None else float(h0)
     h = min(max(h, h_min), h_max)
 
@@ -158,7 +159,7 @@ def simulate_adaptive(model, integrator, t_end: float, *, frame_dt: float | None
         raise TypeError(f"integrator options ({', '.join(integrator_options)}) need an integrator name, not an "
                         f"instance")
     if not isinstance(integrator, Integrator) or not integrator.has_error_estimate:
-        raise SceneError("solver.type", f"adaptive stepping needs an integrator with an error estimate "
+        raise SceneError("integrator", f"adaptive stepping needs an integrator with an error estimate "
                                         f"({', '.join(k for k, c in INTEGRATORS.items() if c.has_error_estimate)}), "
                                         f"got {getattr(integrator, 'name', integrator)!r}")
     integrator.reset()

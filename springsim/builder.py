@@ -337,7 +337,8 @@ class ModelBuilder:
         if mass is not None:
             m = _number("cloth.mass", mass, lo=0.0, strict=True)
         else:
-            m = (1.0 if total_mass is None else _number("cloth.total_mass", total_mass, lo=0.0, strict=True)) / (nx * ny)
+            total = 1.0 if total_mass is None else _number("cloth.total_mass", total_mass, lo=0.0, strict=True)
+            m = total / (nx * ny)
         k = {name: None if v is None else _number(f"cloth.{name}", v, lo=0.0)
              for name, v in (("drag", drag), ("ke", ke), ("kd", kd), ("ke_y", ke_y), ("kd_y", kd_y),
                              ("ke_shear", ke_shear), ("kd_shear", kd_shear), ("ke_bend", ke_bend),

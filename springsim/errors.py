@@ -12,7 +12,7 @@ from __future__ import annotations
 
 __all__ = ["SpringsimError", "SceneError", "SceneTypeError", "SimulationError", "SolverError",
            "SimulationInterrupted", "SpringsimWarning", "ConvergenceWarning", "FallbackWarning",
-           "NewtonConvergenceWarning"]
+           "NewtonConvergenceWarning", "UnusedOptionWarning"]
 
 
 class SpringsimError(Exception):
@@ -91,3 +91,7 @@ class FallbackWarning(SpringsimWarning, RuntimeWarning):
 
     Emitted once per run by the drivers with the count; reasons in ``StepStats.fallbacks``.
     """
+
+
+class UnusedOptionWarning(SpringsimWarning):
+    """An option was given that the chosen integrator (or driver) does not use; it is ignored."""

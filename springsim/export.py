@@ -2,7 +2,8 @@
 
 Small ASCII writers in numpy, no extra dependency. Every frame becomes one file
 ``<stem>_<frame:04d>.<ext>`` holding the particle positions, the springs as line
-segments and, for cloth grids (``model.cloth_grids``), the grid quads as faces. VTK frames come with a ``<stem>.vtk.series`` JSON file (ParaView
+segments and, for cloth grids (``model.cloth_grids``), the grid quads as faces. VTK frames come
+with a ``<stem>.vtk.series`` JSON file (ParaView
 5.5+) carrying the frame times; ParaView also groups numbered files by itself.
 """
 

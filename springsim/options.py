@@ -1,11 +1,33 @@
-"""Limits shared by every entry point (Python API, YAML, command line)."""
+"""Run options, declared once: :class:`SolverConfig`.
+
+Every option a run takes (the YAML ``solver:`` block, the command-line flags of ``springsim run``,
+the keywords of :func:`springsim.integrators.make_integrator` and the drivers) is one field of
+:class:`SolverConfig`, declared with :func:`option`: its type and bounds, default, help text, YAML
+key, command-line flag and where it goes (the integrator, its linear solver, or the driver). The
+YAML parser (:meth:`SolverConfig.from_yaml`), the validation (:meth:`SolverConfig.validate`), the
+command-line flags (:meth:`SolverConfig.add_arguments`) and the keyword options
+(:meth:`SolverConfig.integrator_options`) are all derived from the declarations, so adding an
+option is one field here.
+
+Errors: the Python API raises :class:`~springsim.errors.SceneError` (a ``ValueError``) whose path is
+the parameter (``jacobian: must be one of ...``); :class:`SolverConfig` reports the YAML field path
+(``solver.jacobian``), and the command line its flag.
+"""
 
 from __future__ import annotations
 
-__all__ = ["MAX_STEPS", "describe_int"]
+import math
+from dataclasses import dataclass, field, fields, replace
+
+from .errors import SceneError, SceneTypeError
+
+__all__ = ["MAX_STEPS", "DEFAULT_STEPS", "SolverConfig", "option", "describe_int", "steps_for_duration"]
 
 #: Largest number of steps a run may ask for (a guard against overflowing step counts).
 MAX_STEPS = 10**12
+
+#: Run length used when neither the scene nor the caller gives one.
+DEFAULT_STEPS = 100
 
 
 def describe_int(value: int) -> str:
@@ -13,3 +35,296 @@ def describe_int(value: int) -> str:
     if abs(value) < 10**30:
         return str(value)
     return f"an integer of about {int(abs(value).bit_length() * 0.30103) + 1} digits"
+
+
+def steps_for_duration(duration: float, dt: float) -> int:
+    """Steps of size ``dt`` that cover ``duration`` [s]: ``ceil(duration / dt)`` (a relative 1e-9 slack absorbs
+    rounding, so 1.0 / 0.01 is 100 steps); at least 1 for a positive duration, 0 for 0.
+
+    Raises
+    ------
+    ValueError
+        When that exceeds :data:`MAX_STEPS` (or overflows).
+    """
+    try:
+        ratio = float(duration) / float(dt)
+    except (OverflowError, ZeroDivisionError):
+        ratio = math.inf
+    if not ratio <= MAX_STEPS:
+        raise ValueError(f"a duration of {duration:g} s in steps of {dt:g} s needs more than {MAX_STEPS:.0e} steps")
+    return max(int(math.ceil(ratio - 1e-9 * max(ratio, 1.0))), 1 if duration > 0 else 0)
+
+
+def option(default=None, *, kind: str, help: str, yaml: str | None = None, cli: str | None = None,
+           metavar: str | None = None, lo: float | None = None, hi: float | None = None, strict: bool = False,
+           to: str = "run", kwarg: str | None = None):
+    """Declare a field of :class:`SolverConfig`.
+
+    Parameters
+    ----------
+    default
+        Value when not given (None: the integrator's or solver's own default).
+    kind : {"name", "float", "int"}
+        A registered name (a string checked by the factory), a finite number, or an integer.
+    help : str
+        One line for ``--help`` and the docs.
+    yaml : str, optional
+        Key in the ``solver:`` block (default: the field name).
+    cli : str, optional
+        Command-line flag of ``springsim run`` (None: YAML and Python only).
+    lo, hi, strict
+        Bounds: ``>= lo`` (``> lo`` with ``strict``), ``<= hi``.
+    to : {"integrator", "solver", "run"}
+        Where the value goes: a keyword of :func:`~springsim.integrators.make_integrator`, an option of its
+        linear solver, or the driver.
+    kwarg : str, optional
+        The keyword name there (default: the field name).
+    """
+    meta = dict(kind=kind, help=help, yaml=yaml, cli=cli, metavar=metavar, lo=lo, hi=hi, strict=strict, to=to,
+                kwarg=kwarg)
+    return field(default=default, metadata=meta)
+
+
+def _check(f, value, where: str):
+    """``value`` converted and checked against field ``f``'s declaration; errors name ``where``."""
+    m = f.metadata
+    if value is None:
+        return None
+    kind = m["kind"]
+    if kind == "name":
+        if not isinstance(value, str):
+            raise SceneTypeError(where, f"must be a name, got {type(value).__name__} {value!r:.60}")
+        return value
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or (kind == "int" and not isinstance(value, int)):
+        what = "an integer" if kind == "int" else "a number"
+        shown = describe_int(value) if isinstance(value, int) and not isinstance(value, bool) else f"{value!r:.60}"
+        raise SceneTypeError(where, f"must be {what}, got {type(value).__name__} {shown}")
+    if kind == "float":
+        try:
+            value = float(value)
+        except OverflowError:
+            value = math.inf
+        if not math.isfinite(value):
+            raise SceneError(where, f"must be finite, got {value}")
+    lo, hi, strict = m["lo"], m["hi"], m["strict"]
+    if lo is not None and (value <= lo if strict else value < lo):
+        shown = describe_int(value) if kind == "int" else value
+        raise SceneError(where, f"must be {'>' if strict else '>='} {lo:g}, got {shown}")
+    if hi is not None and value > hi:
+        raise SceneError(where, f"must be <= {describe_int(hi) if kind == 'int' else hi}, got "
+                                f"{describe_int(value) if kind == 'int' else value}")
+    return value
+
+
+@dataclass
+class SolverConfig:
+    """How to run a scene: the ``solver:`` block of a YAML scene, the flags of ``springsim run``.
+
+    Every field is declared with :func:`option` (see the module docstring); ``None`` means the
+    default of the integrator, the linear solver or the driver.
+    """
+
+    integrator: str = option("implicit_euler", kind="name", yaml="type", cli="--integrator", metavar="NAME",
+                             help="time integrator", to="run")
+    dt: float = option(None, kind="float", yaml="timestep", cli="--dt", metavar="H", lo=0.0, strict=True,
+                       help="time step [s]; with adaptive stepping the first step and the frame spacing")
+    steps: int | None = option(None, kind="int", cli="--steps", metavar="N", lo=0, hi=MAX_STEPS,
+                               help="number of steps (default: from duration, else 100)")
+    duration: float | None = option(None, kind="float", cli="--duration", metavar="T", lo=0.0,
+                                    help="simulated time [s] (steps = ceil(T/dt)); give steps or duration")
+    linear_solver: str | None = option(None, kind="name", cli="--solver", metavar="NAME", to="integrator",
+                                       kwarg="solver", help="linear solver of implicit integrators")
+    jacobian: str | None = option(None, kind="name", cli="--jacobian", metavar="MODE", to="integrator",
+                                  help="Jacobian mode (default: exact where the solver takes any matrix, else spd)")
+    linear_rtol: float | None = option(None, kind="float", cli="--rtol", metavar="R", lo=0.0, strict=True,
+                                       to="solver", kwarg="rtol",
+                                       help="relative residual tolerance of iterative linear solvers")
+    newton_tol: float | None = option(None, kind="float", cli="--newton-tol", metavar="TOL", lo=0.0, strict=True,
+                                      to="integrator", help="Newton update tolerance on |dv| [m/s] (default 1e-5)")
+    newton_maxiter: int | None = option(None, kind="int", cli="--newton-maxiter", metavar="N", lo=1, hi=10**6,
+                                        to="integrator",
+                                        help="Newton iteration limit (default 5 for implicit_euler, 50 for bdf2 "
+                                             "and tr_bdf2)")
+    residual_rtol: float | None = option(None, kind="float", cli="--residual-rtol", metavar="R", lo=0.0,
+                                         strict=True, to="integrator",
+                                         help="Newton residual tolerance, relative to the balanced terms "
+                                              "(default 1e-3)")
+    time_rtol: float | None = option(None, kind="float", cli="--time-rtol", metavar="R", lo=0.0, strict=True,
+                                     help="adaptive time stepping (bdf2, tr_bdf2): relative local error tolerance")
+    time_atol: float | None = option(None, kind="float", cli="--time-atol", metavar="A", lo=0.0, strict=True,
+                                     help="adaptive time stepping: absolute local error tolerance [m, m/s]")
+    max_step: float | None = option(None, kind="float", cli="--max-step", metavar="H", lo=0.0, strict=True,
+                                    help="adaptive time stepping: largest step [s] (default a tenth of the run)")
+
+    def __post_init__(self):
+        self.validate()
+
+    # -- declarations --------------------------------------------------------------------------------
+    @classmethod
+    def yaml_key(cls, name: str) -> str:
+        """The ``solver:`` key of field ``name``."""
+        return cls._fields()[name].metadata["yaml"] or name
+
+    @staticmethod
+    def _fields() -> dict:
+        return {f.name: f for f in fields(SolverConfig)}
+
+    # -- validation ----------------------------------------------------------------------------------
+    def validate(self) -> "SolverConfig":
+        """Check every field against its declaration and the registries; return self.
+
+        Raises
+        ------
+        SceneError
+            With the ``solver.<key>`` path of the offending field.
+        """
+        for f in fields(self):
+            setattr(self, f.name, _check(f, getattr(self, f.name), f"solver.{self.yaml_key(f.name)}"))
+        if self.steps is not None and self.duration is not None:
+            raise SceneError("solver", "give steps or duration, not both")
+        from .integrators import integrator_class
+        from .linsolve import linear_solver_class
+
+        for name, check in (("integrator", integrator_class), ("linear_solver", linear_solver_class)):
+            value = getattr(self, name)
+            if value is not None:
+                try:
+                    check(value)
+                except SceneError as e:
+                    raise SceneError(f"solver.{self.yaml_key(name)}", e.message) from None
+        if self.jacobian is not None:
+            from .forces import JACOBIAN_MODES
+
+            if self.jacobian not in JACOBIAN_MODES:
+                raise SceneError("solver.jacobian", f"unknown jacobian mode {self.jacobian!r:.60}; choose one of "
+                                                    f"{', '.join(JACOBIAN_MODES)}")
+        return self
+
+    @classmethod
+    def from_yaml(cls, block, *, default_dt: float | None = None, extra: tuple[str, ...] = ()) -> tuple:
+        """The config of a YAML ``solver:`` mapping, and the values of its ``extra`` keys (a dict).
+
+        ``default_dt`` replaces a missing ``timestep`` (the ``benchmark_cloth`` block's 1/60 s).
+
+        Raises
+        ------
+        SceneError
+            Naming ``solver.<key>`` for unknown, missing or invalid keys.
+        """
+        if type(block) is not dict:
+            raise SceneTypeError("solver", f"must be a mapping, got {type(block).__name__}")
+        by_key = {cls.yaml_key(n): n for n in cls._fields()}
+        allowed = tuple(by_key) + tuple(extra)
+        for k in block:
+            if k not in allowed:
+                raise SceneError("solver", f"unknown key {k!r:.60}; allowed: {', '.join(allowed)}")
+        for key in ("type",) + (() if default_dt is not None else ("timestep",)):
+            if key not in block:
+                raise SceneError("solver", f"missing required key {key!r}")
+        values = {by_key[k]: v for k, v in block.items() if k in by_key}
+        values.setdefault("dt", default_dt)
+        return cls(**values), {k: block[k] for k in extra if k in block}
+
+    # -- command line -------------------------------------------------------------------------------------
+    @classmethod
+    def add_arguments(cls, parser, choices: dict | None = None) -> None:
+        """Add a flag for every field that declares one (type-checked, one-line errors; ``choices`` lists the
+        allowed names of ``"name"`` fields in ``--help``)."""
+        import argparse
+
+        choices = choices or {}
+        steps_or_duration = parser.add_mutually_exclusive_group()
+        for f in fields(cls):
+            m = f.metadata
+            if not m["cli"]:
+                continue
+
+            def convert(text, f=f):
+                kind = f.metadata["kind"]
+                if kind == "name":
+                    return text
+                what = "an integer" if kind == "int" else "a number"
+                if len(text) > 40:
+                    raise argparse.ArgumentTypeError(f"must be {what}, got a {len(text)}-character value")
+                try:
+                    value = int(text) if kind == "int" else float(text)
+                except ValueError:
+                    raise argparse.ArgumentTypeError(f"must be {what}, got {text!r}") from None
+                try:
+                    return _check(f, value, f.metadata["cli"])
+                except SceneError as e:
+                    raise argparse.ArgumentTypeError(e.message) from None
+
+            convert.__name__ = f.name
+            help_ = m["help"]
+            if f.name in choices:
+                help_ += f"; one of: {', '.join(choices[f.name])}"
+            target = steps_or_duration if f.name in ("steps", "duration") else parser
+            target.add_argument(m["cli"], dest=f.name, type=convert, metavar=m["metavar"],
+                                choices=choices.get(f.name), help=f"{help_} (overrides solver.{m['yaml'] or f.name})")
+
+    def with_overrides(self, **overrides) -> "SolverConfig":
+        """A validated copy with the non-None ``overrides`` applied (command-line flags); ``steps`` and ``duration``
+        replace each other."""
+        given = {k: v for k, v in overrides.items() if v is not None and k in self._fields()}
+        if "steps" in given:
+            given.setdefault("duration", None)
+        if "duration" in given:
+            given.setdefault("steps", None)
+        return replace(self, **given)
+
+    # -- what the options do ------------------------------------------------------------------------------
+    @property
+    def adaptive(self) -> bool:
+        """Whether the run uses adaptive time stepping (a time tolerance is set)."""
+        return self.time_rtol is not None or self.time_atol is not None
+
+    def run_steps(self) -> int:
+        """Steps of the run: ``steps``, else ``duration`` in steps of ``dt``, else :data:`DEFAULT_STEPS`."""
+        if self.steps is not None:
+            return self.steps
+        if self.duration is not None:
+            try:
+                return steps_for_duration(self.duration, self.dt)
+            except ValueError as e:
+                raise SceneError("solver.duration", str(e)) from None
+        return DEFAULT_STEPS
+
+    def integrator_options(self) -> dict:
+        """Keyword options for :func:`~springsim.integrators.make_integrator` (only those that are set)."""
+        opts: dict = {}
+        for f in fields(self):
+            value, m = getattr(self, f.name), f.metadata
+            if value is None or m["to"] == "run":
+                continue
+            if m["to"] == "solver":
+                opts.setdefault("solver_options", {})[m["kwarg"] or f.name] = value
+            else:
+                opts[m["kwarg"] or f.name] = value
+        return opts
+
+    def unused(self) -> list[str]:
+        """Fields that are set but have no effect on this run (the YAML keys): Newton options of integrators
+        without Newton iterations, ``max_step`` without adaptive stepping."""
+        from .integrators import integrator_class
+
+        skip = integrator_class(self.integrator).unused_options
+        out = [self.yaml_key(f.name) for f in fields(self)
+               if getattr(self, f.name) is not None and f.metadata["to"] != "run"
+               and (f.metadata["kwarg"] or f.name) in skip]
+        if self.linear_rtol is not None and "solver_options" in skip:
+            out.append("linear_rtol")
+        if self.max_step is not None and not self.adaptive:
+            out.append("max_step")
+        return sorted(set(out))
+
+    def make_integrator(self, model):
+        """The configured integrator for ``model``; an invalid combination names its ``solver.<key>``."""
+        from .integrators import make_integrator
+
+        by_kwarg = {(f.metadata["kwarg"] or f.name): f.name for f in fields(self)}
+        try:
+            return make_integrator(self.integrator, model, **self.integrator_options())
+        except SceneError as e:
+            name = by_kwarg.get(e.path)
+            raise (SceneError(f"solver.{self.yaml_key(name)}", e.message) if name else e) from None

@@ -154,8 +154,9 @@ def observed_errors(name: str, hs, **options) -> np.ndarray:
     reference (rtol 1e-10); ``hs`` must divide 0.2 s.
     """
     from springsim import simulate
-    from springsim.integrators import make_integrator
+    from springsim.integrators import INTEGRATORS, make_integrator
 
+    options = {k: v for k, v in options.items() if k not in INTEGRATORS[name].unused_options}
     model, ref = _chain_reference()
     errs = []
     for h in hs:

@@ -150,7 +150,9 @@ class SystemAssembler:
                 self._sources.append((term, which, offset, layout.value_count))
                 offset += layout.value_count
         self.value_count = offset
-        cat = (lambda xs, dt: np.concatenate(xs).astype(dt) if xs else np.zeros(0, dt))
+        def cat(xs, dt):
+            return np.concatenate(xs).astype(dt) if xs else np.zeros(0, dt)
+
         rows, cols = cat(rows, np.int64), cat(cols, np.int64)
         self.pattern = BlockPattern(F, rows, cols)
         dest = self.pattern.locate(rows, cols)

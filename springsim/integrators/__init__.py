@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
-from ..errors import SceneError
+import warnings
+
+from ..errors import SceneError, UnusedOptionWarning
 from ._base import PRECISION_LOSS_LIMIT, Integrator, StepStats
 from ..errors import ConvergenceWarning, NewtonConvergenceWarning
 from ._implicit import ImplicitIntegrator
@@ -18,7 +20,7 @@ __all__ = ["INTEGRATORS", "Integrator", "ImplicitIntegrator", "StepStats", "PREC
            "NewtonConvergenceWarning",
            "IntegratorExplicitEuler", "IntegratorSymplecticEuler", "IntegratorMidpoint",
            "IntegratorLinearizedImplicit", "IntegratorImplicitEuler", "IntegratorBDF2", "IntegratorTRBDF2",
-           "make_integrator"]
+           "make_integrator", "integrator_class"]
 
 #: Registry: YAML/CLI name -> class.
 INTEGRATORS: dict[str, type[Integrator]] = {
@@ -32,16 +34,32 @@ INTEGRATORS: dict[str, type[Integrator]] = {
 }
 
 
-def make_integrator(name: str, model, **options) -> Integrator:
-    """Build a registered integrator; implicit-only options are dropped for explicit ones.
-
-    Options for implicit integrators: ``solver``, ``jacobian``, ``newton_tol``,
-    ``newton_maxiter``, ``on_nonconvergence``, ``solver_options``.
-    """
+def integrator_class(name: str) -> type[Integrator]:
+    """The registered integrator class ``name``; a SceneError naming ``integrator`` and the choices if unknown."""
     try:
-        cls = INTEGRATORS[name]
-    except KeyError:
-        raise SceneError("solver.type", f"unknown integrator {name!r}; choose one of {', '.join(INTEGRATORS)}") from None
-    if not cls.implicit:
-        options = {k: v for k, v in options.items() if k == "terms"}
-    return cls(model, **options)
+        return INTEGRATORS[name]
+    except (KeyError, TypeError):
+        raise SceneError("integrator", f"unknown integrator {name!r:.60}; choose one of "
+                                       f"{', '.join(INTEGRATORS)}") from None
+
+
+def make_integrator(name: str, model, **options) -> Integrator:
+    """Build the registered integrator ``name`` for ``model`` with keyword ``options``.
+
+    Options of implicit integrators (see :class:`ImplicitIntegrator`): ``solver``, ``jacobian``,
+    ``newton_tol``, ``newton_maxiter``, ``residual_rtol``, ``on_nonconvergence``, ``solver_options``,
+    ``line_search``, ``min_step``, ``escalate_jacobian``, ``escalate_after``. Options the chosen
+    integrator does not use (Newton options for explicit or linearized methods) are ignored with an
+    :class:`~springsim.errors.UnusedOptionWarning` naming them, never silently.
+
+    Raises
+    ------
+    SceneError
+        A ``ValueError`` whose path names the parameter (``integrator``, ``jacobian``, ...).
+    """
+    cls = integrator_class(name)
+    unused = sorted(k for k, v in options.items() if k in cls.unused_options and v is not None)
+    if unused:
+        warnings.warn(f"{name} does not use the option(s) {', '.join(unused)}; ignored", UnusedOptionWarning,
+                      stacklevel=2)
+    return cls(model, **{k: v for k, v in options.items() if k not in cls.unused_options})

@@ -133,6 +133,10 @@ class Integrator(ABC):
     has_error_estimate: ClassVar[bool] = False
     #: Largest ratio of consecutive step sizes the method tolerates (adaptive stepping).
     max_step_ratio: ClassVar[float] = float("inf")
+    #: Keyword options other integrators take that this one ignores (:func:`make_integrator` warns about them).
+    unused_options: ClassVar[frozenset] = frozenset({
+        "solver", "jacobian", "newton_tol", "newton_maxiter", "residual_rtol", "on_nonconvergence", "solver_options",
+        "line_search", "min_step", "escalate_jacobian", "escalate_after"})
 
     def __init__(self, model, *, terms=None):
         self.model = model

@@ -52,10 +52,10 @@ from ._base import PRECISION_LOSS_LIMIT, Integrator, StepStats
 __all__ = ["ImplicitIntegrator"]
 
 
-def _check_count(field: str, value) -> None:
-    """A SceneError naming ``field`` unless ``value`` is an integer >= 1."""
-    if int(value) != value or value < 1:
-        raise SceneError(field, f"must be an integer >= 1, got {value}")
+def _check_count(name: str, value) -> None:
+    """A SceneError naming the parameter ``name`` unless ``value`` is an integer >= 1."""
+    if isinstance(value, bool) or int(value) != value or value < 1:
+        raise SceneError(name, f"must be an integer >= 1, got {value!r:.60}")
 
 
 class ImplicitIntegrator(Integrator):
@@ -106,6 +106,7 @@ class ImplicitIntegrator(Integrator):
     """
 
     implicit = True
+    unused_options = frozenset()
     #: Newton iteration limit when none is given
     default_newton_maxiter = 5
 
@@ -118,14 +119,14 @@ class ImplicitIntegrator(Integrator):
         if jacobian is None:
             jacobian = "spd" if self.solver.needs_spd_for(3 * model.free_count) else "exact"
         if jacobian not in JACOBIAN_MODES:
-            raise SceneError("solver.jacobian", f"must be one of {', '.join(JACOBIAN_MODES)}, got {jacobian!r}")
+            raise SceneError("jacobian", f"must be one of {', '.join(JACOBIAN_MODES)}, got {jacobian!r}")
         if not newton_tol > 0:
-            raise SceneError("solver.newton_tol", f"must be > 0, got {newton_tol}")
+            raise SceneError("newton_tol", f"must be > 0, got {newton_tol}")
         if not residual_rtol > 0:
-            raise SceneError("solver.residual_rtol", f"must be > 0, got {residual_rtol}")
+            raise SceneError("residual_rtol", f"must be > 0, got {residual_rtol}")
         if newton_maxiter is None:
             newton_maxiter = self.default_newton_maxiter
-        _check_count("solver.newton_maxiter", newton_maxiter)
+        _check_count("newton_maxiter", newton_maxiter)
         if on_nonconvergence not in ("warn", "raise", "ignore"):
             raise ValueError(f"on_nonconvergence must be warn, raise or ignore, got {on_nonconvergence!r}")
         self.jacobian = jacobian
@@ -137,7 +138,7 @@ class ImplicitIntegrator(Integrator):
         self.min_step = float(min_step)
         self.escalate_jacobian = bool(escalate_jacobian)
         if escalate_after is not None:
-            _check_count("solver.escalate_after", escalate_after)
+            _check_count("escalate_after", escalate_after)
         self.escalate_after = None if escalate_after is None else int(escalate_after)
         self.assembler = SystemAssembler(model, self.terms)
         self._mass = model.particle_mass[:, None]

@@ -34,6 +34,9 @@ class IntegratorLinearizedImplicit(ImplicitIntegrator):
     unused: the one Newton step is never checked, repeated or shortened."""
 
     name = "linearized_implicit"
+    # one plain Newton iteration: no stopping rule, line search or escalation
+    unused_options = frozenset({"newton_tol", "newton_maxiter", "residual_rtol", "line_search", "min_step",
+                                "escalate_jacobian", "escalate_after"})
 
     def blowup_hint(self) -> str:
         if self.jacobian != "spd":

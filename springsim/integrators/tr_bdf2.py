@@ -29,7 +29,8 @@ Local error estimate (Hosea and Shampine 1996, eq. for TR-BDF2's embedded pair):
     k = (-3 gamma^2 + 4 gamma - 2) / (12 (2 - gamma))
 
 with ``f = qd`` for positions and ``f = a`` for velocities; the bracket is ``h^2/2`` times
-the second derivative of ``f``, so ``err = -k h^3 y'''`` (sign: numerical minus exact; checked against a Radau reference).
+the second derivative of ``f``, so ``err = -k h^3 y'''`` (sign: numerical minus exact;
+checked against a Radau reference).
 """
 
 from __future__ import annotations

@@ -10,6 +10,7 @@ chooses among them by size and symmetry. Adding a solver is a module plus one li
 
 from __future__ import annotations
 
+from ..errors import SceneError
 from ._base import BACKWARD_TOL, LinearSolver, LinearSolveResult, backward_error, relative_residual
 from .auto import LinearSolverAuto
 from .dense import LinearSolverDense
@@ -21,7 +22,7 @@ from .preconditioners import PRECONDITIONERS, Preconditioner
 __all__ = ["LINEAR_SOLVERS", "LinearSolver", "LinearSolveResult", "LinearSolverDense", "LinearSolverDirect",
            "LinearSolverIterative", "LinearSolverCG", "LinearSolverAMGCG", "LinearSolverAMGGMRES", "LinearSolverAuto",
            "CG", "GMRES", "KRYLOV_METHODS", "Preconditioner", "PRECONDITIONERS", "make_linear_solver",
-           "relative_residual", "backward_error", "BACKWARD_TOL"]
+           "linear_solver_class", "relative_residual", "backward_error", "BACKWARD_TOL"]
 
 #: Registry: name -> solver class (the iterative ones are presets of :class:`LinearSolverIterative`).
 LINEAR_SOLVERS: dict[str, type[LinearSolver]] = {
@@ -34,21 +35,25 @@ LINEAR_SOLVERS: dict[str, type[LinearSolver]] = {
 }
 
 
+def linear_solver_class(name: str) -> type[LinearSolver]:
+    """The registered solver class ``name``; a SceneError naming ``linear_solver`` and the choices if unknown."""
+    try:
+        return LINEAR_SOLVERS[name]
+    except (KeyError, TypeError):
+        raise SceneError("linear_solver", f"unknown linear solver {name!r:.60}; choose one of "
+                                          f"{', '.join(LINEAR_SOLVERS)}") from None
+
+
 def make_linear_solver(name: str | LinearSolver, **options) -> LinearSolver:
     """Instantiate a registered solver by name with ``options`` (an instance passes through unchanged).
 
     Raises
     ------
-    ValueError
-        For an unknown name, listing the registered ones.
+    SceneError
+        A ``ValueError`` naming ``linear_solver`` for an unknown name, listing the registered ones.
     """
     if isinstance(name, LinearSolver):
         if options:
             raise TypeError(f"solver options {sorted(options)} need a solver name, not an instance")
         return name
-    try:
-        cls = LINEAR_SOLVERS[name]
-    except (KeyError, TypeError):
-        raise ValueError(f"linear_solver: unknown linear solver {name!r:.60}; choose one of "
-                         f"{', '.join(LINEAR_SOLVERS)}") from None
-    return cls(**options)
+    return linear_solver_class(name)(**options)

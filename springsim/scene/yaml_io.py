@@ -29,7 +29,7 @@ import os
 import re
 import reprlib
 import stat
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -37,15 +37,13 @@ import yaml
 
 from ..builder import ModelBuilder
 from ..errors import SceneError
-from ..options import MAX_STEPS
+from ..options import SolverConfig
 from ..model import AXES, Model
 from .gallery import BENCHMARK_DT, benchmark_cloth_grid
 
-__all__ = ["Scene", "SolverConfig", "PlotSpec", "load_scene", "parse_scene", "DEFAULT_STEPS",
+__all__ = ["Scene", "PlotSpec", "load_scene", "parse_scene",
            "MAX_GENERATED_PARTICLES", "MAX_SCENE_BYTES", "MAX_NESTING"]
 
-#: Run length used when neither the scene nor the caller gives one.
-DEFAULT_STEPS = 100
 
 #: Largest particle count the generator blocks may create (read at call time), so a typo
 #: such as ``nx: 1000000`` is an error rather than an out-of-memory crash. A smaller bound
@@ -70,10 +68,6 @@ MIN_EXPANDED_NODES = 1_000_000
 
 _TOP_KEYS = ("solver", "particles", "springs", "gravitational", "plot", "cloth", "benchmark_cloth",
              "name", "description")
-_SOLVER_KEYS = ("type", "timestep", "gravity", "up_axis", "steps", "duration", "linear_solver", "jacobian",
-                "linear_rtol", "newton_tol", "newton_maxiter", "time_rtol", "time_atol", "max_step")
-#: solver keys that must be finite numbers > 0 when given
-_POSITIVE_SOLVER_KEYS = ("linear_rtol", "newton_tol", "time_rtol", "time_atol", "max_step")
 _PARTICLE_KEYS = ("pos", "vel", "mass", "fixed", "radius", "drag")
 _SPRING_KEYS = ("particle_ids", "stiffness", "damping", "rest_length")
 _GRAV_KEYS = ("particle_ids", "G", "softening")
@@ -116,95 +110,6 @@ _Loader.add_implicit_resolver(
 
 
 # -- the result ---------------------------------------------------------------------------
-@dataclass
-class SolverConfig:
-    """Time-integration settings of a scene (the ``solver:`` block).
-
-    Attributes
-    ----------
-    integrator : str
-        Integrator name, a key of :data:`springsim.integrators.INTEGRATORS` (YAML ``type``).
-    dt : float
-        Time step [s], > 0 (YAML ``timestep``).
-    steps : int or None
-        Default run length (YAML ``steps``, or ``duration`` / ``timestep`` rounded up).
-    linear_solver : str or None
-        Linear solver name, a key of :data:`springsim.linsolve.LINEAR_SOLVERS`; None: the integrator's default.
-    jacobian : str or None
-        Jacobian mode (:data:`springsim.forces.JACOBIAN_MODES`); None: the integrator's default.
-    linear_rtol : float or None
-        Relative tolerance of iterative linear solvers, > 0.
-    newton_tol : float or None
-        Newton stopping tolerance on ``|dv|_2`` [m/s], > 0.
-    newton_maxiter : int or None
-        Newton iteration limit, >= 1.
-    time_rtol, time_atol : float or None
-        Local error tolerances of adaptive time stepping, > 0.
-    max_step : float or None
-        Largest step of adaptive time stepping [s], > 0 (None: the driver's default, a tenth of
-        the run); unused by fixed steps.
-    """
-
-    integrator: str
-    dt: float
-    steps: int | None = None
-    linear_solver: str | None = None
-    jacobian: str | None = None
-    linear_rtol: float | None = None
-    newton_tol: float | None = None
-    newton_maxiter: int | None = None
-    time_rtol: float | None = None
-    time_atol: float | None = None
-    max_step: float | None = None
-
-    def validate(self) -> "SolverConfig":
-        """Check every field (names against the registries as they are now); return self.
-
-        Raises
-        ------
-        SceneError
-            With a ``solver.<key>`` path.
-        """
-        from ..forces import _base as forces_base
-        from ..integrators import INTEGRATORS
-        from ..linsolve import LINEAR_SOLVERS
-
-        _choice("solver.type", self.integrator, INTEGRATORS, "integrator")
-        if self.linear_solver is not None:
-            _choice("solver.linear_solver", self.linear_solver, LINEAR_SOLVERS, "linear solver")
-        if self.jacobian is not None:
-            _choice("solver.jacobian", self.jacobian, forces_base.JACOBIAN_MODES, "jacobian mode")
-        _positive("solver.timestep", self.dt)
-        for key in _POSITIVE_SOLVER_KEYS:
-            v = getattr(self, key)
-            if v is not None:
-                _positive(f"solver.{key}", v)
-        for key, lo, hi in (("newton_maxiter", 1, 10**6), ("steps", 0, MAX_STEPS)):
-            v = getattr(self, key)
-            if v is not None and (not _is_int(v) or not lo <= v <= hi):
-                raise SceneError(f"solver.{key}", f"must be an integer in [{lo}, {hi}], got {_show(v)}")
-        return self
-
-    def with_overrides(self, **overrides) -> "SolverConfig":
-        """A validated copy with the non-None ``overrides`` applied (CLI options)."""
-        return replace(self, **{k: v for k, v in overrides.items() if v is not None}).validate()
-
-    def integrator_options(self) -> dict:
-        """Keyword options for :func:`springsim.integrators.make_integrator` (only those that are set)."""
-        opts: dict = {}
-        if self.linear_solver is not None:
-            opts["solver"] = self.linear_solver
-        if self.jacobian is not None:
-            opts["jacobian"] = self.jacobian
-        if self.newton_tol is not None:
-            opts["newton_tol"] = self.newton_tol
-        if self.newton_maxiter is not None:
-            opts["newton_maxiter"] = self.newton_maxiter
-        if self.linear_rtol is not None:
-            opts["solver_options"] = {"rtol": self.linear_rtol}
-        return opts
-
-
 @dataclass(frozen=True)
 class PlotSpec:
     """The ``plot:`` block: which coordinate of which particle to plot.
@@ -272,16 +177,8 @@ def _is_int(v) -> bool:
     return type(v) is int
 
 
-def _choice(path: str, v, allowed, what: str) -> None:
-    if not isinstance(v, str) or v not in allowed:
-        raise SceneError(path, f"unknown {what} {_show(v)}; choose one of {', '.join(allowed)}")
 
 
-def _positive(path: str, v) -> None:
-    if not _is_num(v):
-        raise SceneError(path, f"must be a number, got {_type_name(v)} {_show(v)}")
-    if not (math.isfinite(v) and v > 0):
-        raise SceneError(path, f"must be finite and > 0, got {_show(v)}")
 
 
 def _number(path: str, v, *, lo: float | None = None, strict: bool = False) -> float:
@@ -331,40 +228,16 @@ def _item_list(path: str, v) -> list:
 
 # -- sections -----------------------------------------------------------------------------
 def _parse_solver(doc: dict, default_dt: float | None) -> tuple[SolverConfig, float, str]:
+    """The ``solver:`` block: the run options (:class:`SolverConfig`) and the model's ``gravity`` and ``up_axis``."""
     s = doc.get("solver")
     if s is None:
         raise SceneError("solver", "missing required block (needs at least 'type' and 'timestep')")
-    _mapping("solver", s, _SOLVER_KEYS, ("type",) if default_dt is not None else ("type", "timestep"))
-    dt = s.get("timestep", default_dt)
-    _positive("solver.timestep", dt)
-    steps = s.get("steps")
-    if "duration" in s:
-        if steps is not None:
-            raise SceneError("solver", "give steps or duration, not both")
-        dur = _number("solver.duration", s["duration"], lo=0.0)
-        if not dur / dt <= MAX_STEPS:
-            raise SceneError("solver.duration", f"needs too many steps of {dt:g} s, got {_show(dur)}")
-        steps = max(int(math.ceil(dur / dt - 1e-9)), 0)
-    for key in ("type", "linear_solver", "jacobian"):
-        if key in s and not isinstance(s[key], str):
-            raise SceneError(f"solver.{key}", f"must be a string, got {_type_name(s[key])} {_show(s[key])}")
-    gravity = _number("solver.gravity", s.get("gravity", -9.81))
-    up = s.get("up_axis", "z")
+    cfg, extra = SolverConfig.from_yaml(s, default_dt=default_dt, extra=("gravity", "up_axis"))
+    gravity = _number("solver.gravity", extra.get("gravity", -9.81))
+    up = extra.get("up_axis", "z")
     if up not in AXES and not (_is_int(up) and 0 <= up <= 2):
         raise SceneError("solver.up_axis", f"must be one of {', '.join(AXES)} (or 0, 1, 2), got {_show(up)}")
-    for key in _POSITIVE_SOLVER_KEYS:
-        if key in s:
-            _positive(f"solver.{key}", s[key])
-    cfg = SolverConfig(integrator=s["type"], dt=float(dt), steps=steps, linear_solver=s.get("linear_solver"),
-                       jacobian=s.get("jacobian"), linear_rtol=_opt_float(s, "linear_rtol"),
-                       newton_tol=_opt_float(s, "newton_tol"), newton_maxiter=s.get("newton_maxiter"),
-                       time_rtol=_opt_float(s, "time_rtol"), time_atol=_opt_float(s, "time_atol"),
-                       max_step=_opt_float(s, "max_step"))
-    return cfg.validate(), gravity, up
-
-
-def _opt_float(s: dict, key: str) -> float | None:
-    return None if s.get(key) is None else float(s[key])
+    return cfg, gravity, up
 
 
 def _parse_particles(items: list) -> dict[str, np.ndarray]:

@@ -86,7 +86,7 @@ def test_export_trajectory_series(cloth, tmp_path):
 
 def test_export_command(tmp_path):
     """The export command turns a trajectory .npz of a scene into per-frame PLY files."""
-    from springsim.cli_extra import export_command
+    from springsim.cli.export import export_command
 
     q = np.zeros((3, 2, 3))
     q[:, 0, 2] = 1.0

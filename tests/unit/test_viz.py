@@ -87,7 +87,7 @@ def _run(cmd, argv):
 
 def test_plot_and_render_commands(tmp_path):
     """The plot and render commands write a PNG from a scene, a GIF, and a PNG from a trajectory .npz."""
-    from springsim.cli_extra import plot_command, render_command
+    from springsim.cli.pictures import plot_command, render_command
 
     spring = str(SCENES / "spring.yaml")
     assert _run(plot_command, [spring, "--out", str(tmp_path / "p.png"), "--steps", "20"]) == 0

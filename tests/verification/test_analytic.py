@@ -14,7 +14,8 @@ IMPLICIT_OPTS = dict(solver="direct", newton_tol=1e-12, newton_maxiter=20)
 
 
 def _integrator(name, model):
-    return make_integrator(name, model, **(IMPLICIT_OPTS if INTEGRATORS[name].implicit else {}))
+    cls = INTEGRATORS[name]
+    return make_integrator(name, model, **{k: v for k, v in IMPLICIT_OPTS.items() if k not in cls.unused_options})
 
 
 def _free_fall_model(v0=(1.0, -0.5, 3.0)):

@@ -192,7 +192,7 @@ def test_generated_hostile_documents(depth, fan, levels, duplicate):
     (["--dt", "nan"], "--dt"),
     (["--frame-every", "0"], "--frame-every"),
     (["--newton-maxiter", "10000000"], "--newton-maxiter"),
-    (["--integrator", "nope"], "unknown integrator"),
+    (["--integrator", "nope"], "invalid choice: 'nope'"),
 ])
 def test_bad_run_options_are_one_line(capsys, argv, fragment):
     """Overflowing or invalid option values: one line naming the option, exit 2."""

@@ -1,0 +1,257 @@
+"""``springsim run``: run a scene and print a summary; the run path ``plot`` and ``render`` reuse.
+
+The options of a run are the fields of :class:`springsim.options.SolverConfig` (one flag each,
+derived from its declarations) plus ``--out``, ``--frame-every`` and ``--quiet``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+import time
+import warnings
+from pathlib import Path
+
+from ..errors import SimulationError, SimulationInterrupted, SpringsimError, SpringsimWarning
+from ..options import MAX_STEPS, SolverConfig
+from .argtypes import int_at_least
+
+__all__ = ["run_command", "add_run_options", "load_and_configure", "execute", "ProgressBar"]
+
+
+class _Exit(Exception):
+    """Leave :func:`springsim.cli.main` with this exit status (the message was printed already)."""
+
+    def __init__(self, status: int):
+        super().__init__(status)
+        self.status = status
+
+
+class ProgressBar:
+    """A text progress bar on a stream, drawn with carriage returns.
+
+    Appears only after ``delay`` seconds and redraws at most every ``interval``
+    seconds, so short runs print nothing. Used only when the stream is a terminal.
+    """
+
+    def __init__(self, stream, *, delay: float = 1.0, interval: float = 0.2, width: int = 30):
+        self.stream = stream
+        self.delay = delay
+        self.interval = interval
+        self.width = width
+        self.t0 = time.perf_counter()
+        self._last = -math.inf
+        self.drawn = False
+
+    def __call__(self, step: int, steps: int) -> None:
+        now = time.perf_counter()
+        if now - self.t0 < self.delay or (now - self._last < self.interval and step < steps):
+            return
+        self._last = now
+        frac = step / max(steps, 1)
+        fill = int(round(self.width * frac))
+        elapsed = now - self.t0
+        eta = elapsed * (1 - frac) / frac if frac > 0 else math.nan
+        self.stream.write(f"\r[{'#' * fill}{'.' * (self.width - fill)}] {step}/{steps} "
+                          f"{elapsed:6.1f} s elapsed, {eta:6.1f} s left ")
+        self.stream.flush()
+        self.drawn = True
+
+    def close(self) -> None:
+        """End the bar's line (if one was drawn)."""
+        if self.drawn:
+            self.stream.write("\n")
+            self.stream.flush()
+            self.drawn = False
+
+
+def add_run_options(p: argparse.ArgumentParser) -> None:
+    """The flags of every command that runs a scene: one per :class:`SolverConfig` field that declares one."""
+    from ..forces import JACOBIAN_MODES
+    from ..integrators import INTEGRATORS
+    from ..linsolve import LINEAR_SOLVERS
+
+    SolverConfig.add_arguments(p, choices={"integrator": list(INTEGRATORS), "linear_solver": list(LINEAR_SOLVERS),
+                                           "jacobian": list(JACOBIAN_MODES)})
+
+
+def _add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("scene", help="scene file (YAML)")
+    add_run_options(p)
+    p.add_argument("--out", metavar="FILE.npz", help="write frames t (F,), q (F,N,3), qd (F,N,3) to an .npz")
+    p.add_argument("--frame-every", type=int_at_least(1, MAX_STEPS), default=1, metavar="K",
+                   help="record every K-th step in --out (first and last always; default 1)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar and no summary")
+
+
+def load_and_configure(args: argparse.Namespace):
+    """``(scene, config)``: the scene of ``args.scene`` with the command-line overrides applied."""
+    from ..scene import load_scene
+
+    scene = load_scene(Path(args.scene))  # always a path on the command line, never YAML text
+    names = [f for f in SolverConfig._fields() if hasattr(args, f)]
+    cfg = scene.config.with_overrides(**{name: getattr(args, name) for name in names})
+    return scene, cfg
+
+
+def execute(scene, cfg, *, record: bool = True, frame_every: int = 1, progress=None):
+    """Run ``scene`` as configured by ``cfg``: ``(integrator, trajectory)``; steps that did not meet their criteria
+    and fallbacks are reported by the caller (from the trajectory), not as Python warnings."""
+    from ..adaptive import simulate_adaptive
+    from ..driver import simulate
+
+    steps = cfg.run_steps()
+    unused = cfg.unused()
+    if unused:
+        print(f"springsim: warning: {cfg.integrator} does not use {', '.join(unused)}"
+              f"{' (max_step needs time_rtol or time_atol)' if 'max_step' in unused else ''}; ignored",
+              file=sys.stderr)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SpringsimWarning)  # reported in the CLI's own lines
+        integrator = cfg.make_integrator(scene.model)
+        if cfg.adaptive:  # frames every dt
+            rtol = cfg.time_rtol if cfg.time_rtol is not None else cfg.time_atol
+            atol = cfg.time_atol if cfg.time_atol is not None else cfg.time_rtol
+            traj = simulate_adaptive(scene.model, integrator, steps * cfg.dt, time_rtol=rtol, time_atol=atol,
+                                     frame_dt=cfg.dt * frame_every if record else None,
+                                     h0=cfg.dt, h_max=cfg.max_step,  # the driver clips h0 to h_max
+                                     progress=None if progress is None else
+                                     (lambda t, t_end: progress(int(round(t / cfg.dt)), steps)))
+        else:
+            traj = simulate(scene.model, integrator, cfg.dt, steps, frame_every=frame_every, record=record,
+                            progress=progress)
+    return integrator, traj
+
+
+def warn_failed_steps(traj) -> None:
+    """One ``springsim: warning:`` line when steps did not meet their criteria."""
+    s = traj.summary()
+    if s["failed_steps"]:
+        first = next(x for x in traj.stats if not x.ok)
+        print(f"springsim: warning: {s['failed_steps']} of {s['steps']} step(s) did not meet their criteria "
+              f"(first: {'; '.join(first.failures)})", file=sys.stderr)
+
+
+def _fmt_s(s: float) -> str:
+    if s >= 1:
+        return f"{s:.3f} s"
+    if s >= 1e-3:
+        return f"{s * 1e3:.3f} ms"
+    return f"{s * 1e6:.1f} us"
+
+
+def summary_lines(scene, cfg, integrator, traj) -> list[tuple[str, str]]:
+    """The rows of the run summary."""
+    m = scene.model
+    s = traj.summary()
+    rows = [
+        ("scene", f"{scene.source} ({scene.name})"),
+        ("particles", f"{m.particle_count} ({m.free_count} free, {m.particle_count - m.free_count} fixed)"),
+        ("springs", str(m.spring_count)),
+        ("gravitational pairs", str(m.gravitational_count)),
+        ("dofs", str(m.dof_count)),
+    ]
+    if integrator.implicit:
+        solver = integrator.solver
+        chosen = f" -> {solver.last_choice}" if getattr(solver, "last_choice", None) else ""
+        rows.append(("integrator", f"{cfg.integrator} (linear solver {solver.name}{chosen}, "
+                                   f"jacobian {integrator.jacobian})"))
+    else:
+        rows.append(("integrator", cfg.integrator))
+    a = traj.adaptive_stats
+    if a:
+        rows.append(("steps", f"{a['accepted']} adaptive (mean h {a['h_mean']:.3g} s, h in [{a['h_min']:.3g}, "
+                              f"{a['h_max']:.3g}] s), {a['rejected']} rejected"))
+    else:
+        rows.append(("steps", f"{s['steps']} x dt = {cfg.dt:g} s"))
+    rows += [
+        ("simulated time", f"{traj.t[-1]:g} s"),
+        ("wall time", f"{_fmt_s(s['wall_s'])} (CPU {_fmt_s(s['cpu_s'])})"),
+        ("time per step", _fmt_s(s["step_s"])),
+    ]
+    if integrator.implicit and s["steps"]:
+        rows += [
+            ("assembly per step", _fmt_s(s["assembly_s"])),
+            ("linear solve per step", _fmt_s(s["solve_s"])),
+            ("other per step", _fmt_s(s["other_s"])),
+            ("Newton iterations", f"{s['newton_iterations']:.2f} per step"),
+            ("linear iterations", f"{s['linear_iterations']:.2f} per step"),
+            ("failed steps", f"{s['failed_steps']} (Newton {s['newton_failures']}, linear solves "
+                             f"{s['linear_failures']}, ill-conditioned {s['ill_conditioned']})"),
+            ("solver fallbacks", str(s["fallbacks"])),
+            ("max linear residual", f"{s['max_linear_residual']:.2e}"),
+            ("max precision loss", f"{s['max_precision_loss']:.1e}"),
+        ]
+    if cfg.adaptive:
+        rows.append(("time tolerances", f"time_rtol {cfg.time_rtol or cfg.time_atol:g}, "
+                                        f"time_atol {cfg.time_atol or cfg.time_rtol:g}"))
+    return rows
+
+
+def save_or_rescue(traj, out: str) -> None:
+    """Write ``traj`` to ``out``; if that fails, to a rescue file in the temporary directory (named on stderr)."""
+    try:
+        traj.save(out)
+        return
+    except (OSError, SpringsimError) as e:
+        why = getattr(e, "strerror", None) or str(e)
+    import tempfile
+
+    fd, rescue = tempfile.mkstemp(prefix="springsim-rescue-", suffix=".npz")
+    os.close(fd)
+    try:
+        traj.save(rescue)
+    except (OSError, SpringsimError) as e2:
+        raise SpringsimError(f"--out {out}: cannot write ({why}); the rescue copy failed too "
+                             f"({getattr(e2, 'strerror', None) or e2}); the frames are lost") from None
+    print(f"springsim: error: --out {out}: cannot write ({why}); saved {traj.frame_count} frame(s) to {rescue} "
+          f"instead", file=sys.stderr)
+    raise _Exit(1)
+
+
+def _run(args: argparse.Namespace) -> int:
+    from ..driver import check_output_path
+
+    scene, cfg = load_and_configure(args)
+    if args.out is not None:
+        check_output_path(args.out)  # before the run: a run is never lost to an unwritable --out
+    progress = ProgressBar(sys.stderr) if not args.quiet and sys.stderr.isatty() else None
+    record = args.out is not None
+    try:
+        integrator, traj = execute(scene, cfg, record=record, frame_every=args.frame_every, progress=progress)
+    except (SimulationError, SimulationInterrupted) as e:
+        if progress is not None:
+            progress.close()
+        interrupted = isinstance(e, SimulationInterrupted)
+        print(f"springsim: {'interrupted' if interrupted else 'error'}: {e}", file=sys.stderr)
+        if args.out is not None and e.trajectory is not None and e.trajectory.frame_count:
+            save_or_rescue(e.trajectory, args.out)
+            print(f"springsim: saved {e.trajectory.frame_count} finite frame(s) up to "
+                  f"t={e.trajectory.t[-1]:g} s to {args.out}", file=sys.stderr)
+        return 130 if interrupted else 1
+    if progress is not None:
+        progress.close()
+    if args.out is not None:
+        save_or_rescue(traj, args.out)
+    warn_failed_steps(traj)
+    if not args.quiet:
+        rows = summary_lines(scene, cfg, integrator, traj)
+        if args.out is not None:
+            rows.append(("output", f"{args.out} ({traj.frame_count} frames)"))
+        w = max(len(k) for k, _ in rows)
+        for k, v in rows:
+            print(f"{k + ':':<{w + 1}} {v}")
+    return 0
+
+
+class _RunCommand:
+    help = "run a scene and print a summary"
+
+    add_arguments = staticmethod(_add_arguments)
+    run = staticmethod(_run)
+
+
+#: ``springsim run``.
+run_command = _RunCommand()
