@@ -33,12 +33,15 @@ exactly; the last step is shortened to land on ``t_end``.
 
 from __future__ import annotations
 
+from typing import Any, Callable
+
 import numpy as np
 
 from ._threads import single_blas_thread
 from .driver import RunRecorder, Trajectory
 from .errors import SceneError, SimulationError, SpringsimError
-from .integrators import INTEGRATORS, Integrator, make_integrator
+from .integrators import INTEGRATORS, Integrator, StepStats, make_integrator
+from .model import Model, State
 
 __all__ = ["simulate_adaptive", "hermite_frame"]
 
@@ -67,11 +70,12 @@ def hermite_frame(t0, q0, v0, t1, q1, v1, t):
     return q, v
 
 
-def simulate_adaptive(model, integrator, t_end: float, *, frame_dt: float | None = None, t_frames=None,
-                      time_rtol: float = 1e-3, time_atol: float = 1e-4, h0: float | None = None,
-                      h_min: float = 1e-7, h_max: float | None = None, error_on: str = "qv", state=None,
-                      safety: float = 0.9, grow: float = 4.0, shrink: float = 0.2, max_steps: int = 1_000_000,
-                      progress=None, **integrator_options) -> Trajectory:
+def simulate_adaptive(model: Model, integrator: str | Integrator, t_end: float, *, frame_dt: float | None = None,
+                      t_frames=None, time_rtol: float = 1e-3, time_atol: float = 1e-4, h0: float | None = None,
+                      h_min: float = 1e-7, h_max: float | None = None, error_on: str = "qv",
+                      state: State | None = None, safety: float = 0.9, grow: float = 4.0, shrink: float = 0.2,
+                      max_steps: int = 1_000_000, progress: Callable[[float, float], None] | None = None,
+                      **integrator_options) -> Trajectory:
     """Integrate to ``t_end`` with step sizes chosen from a local error estimate.
 
     Parameters
@@ -169,8 +173,8 @@ def simulate_adaptive(model, integrator, t_end: float, *, frame_dt: float | None
     fixed = model.particle_fixed
 
     run = RunRecorder(model, integrator, state)
-    info = dict(accepted=0, rejected=0, newton_failures=0, failed_attempts=0, newton_iterations=0,
-                linear_iterations=0, h_min=np.inf, h_max=0.0, h_mean=0.0)
+    info: dict[str, Any] = dict(accepted=0, rejected=0, newton_failures=0, failed_attempts=0, newton_iterations=0,
+                                linear_iterations=0, h_min=np.inf, h_max=0.0, h_mean=0.0)
     run.adaptive_stats = info
     fi = 0
     t = 0.0
@@ -186,16 +190,18 @@ def simulate_adaptive(model, integrator, t_end: float, *, frame_dt: float | None
                                           run.trajectory(keep_last=True), step=info["accepted"])
                 if t + h >= t_end * (1 - 1e-12) or t_end - (t + h) < h_min:
                     h = t_end - t  # the last step lands on t_end
+                st: StepStats | None = None
+                why: str | None
                 try:
                     st = run.step(h)
                 except SimulationError:
                     raise
                 except SpringsimError as e:  # a solve with no usable solution: retry smaller, like a failed Newton
-                    st, why = None, f"{type(e).__name__}: {e}"
+                    why = f"{type(e).__name__}: {e}"
                 else:
                     info["newton_iterations"] += st.newton_iterations
                     info["linear_iterations"] += st.linear_iterations
-                    why = run.problem(info["accepted"] + 1, t + h) or (None if st.ok else "; ".join(st.failures))
+                    why = run.problem() or (None if st.ok else "; ".join(st.failures))
                 if why is not None:
                     info["rejected"] += 1
                     info["failed_attempts"] += 1
@@ -207,6 +213,7 @@ def simulate_adaptive(model, integrator, t_end: float, *, frame_dt: float | None
                     h = max(h_min, 0.25 * h)
                     just_rejected = True
                     continue
+                assert st is not None and integrator.error_estimate is not None  # a finished, accepted attempt
                 eq, ev = integrator.error_estimate
                 q0, v0 = run.state.particle_q, run.state.particle_qd
                 q1, v1 = run.scratch.particle_q, run.scratch.particle_qd
@@ -224,7 +231,7 @@ def simulate_adaptive(model, integrator, t_end: float, *, frame_dt: float | None
                 info["accepted"] += 1
                 info["h_min"] = float(min(info["h_min"], h))
                 info["h_max"] = float(max(info["h_max"], h))
-                frames = []
+                frames: list[tuple | None] = []
                 while fi < t_frames.size and t_frames[fi] <= t1 * (1 + 1e-12):
                     tf = t_frames[fi]
                     if abs(tf - t1) <= 1e-12 * max(t1, 1.0):

@@ -34,13 +34,14 @@ import warnings
 import zipfile
 import zlib
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 
 from .energy import EnergyBound
 from .errors import (ConvergenceWarning, FallbackWarning, SimulationError, SimulationInterrupted, SpringsimError)
 from .integrators import Integrator, StepStats
-from .model import State
+from .model import Model, State
 from ._threads import single_blas_thread
 from .options import MAX_STEPS, describe_int
 
@@ -350,7 +351,7 @@ class RunRecorder:
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # judged by check()
             return self.integrator.step(self.state, self.scratch, dt)
 
-    def problem(self, step: int, t_new: float) -> str | None:
+    def problem(self) -> str | None:
         """Why the state in :attr:`scratch` is a blow-up (NaN/inf, energy bound), or None."""
         s = self.scratch
         if not s.is_finite():
@@ -367,7 +368,7 @@ class RunRecorder:
 
     def check(self, step: int, t_new: float) -> None:
         """Raise :class:`SimulationError` if the state in :attr:`scratch` blew up (:meth:`problem`)."""
-        why = self.problem(step, t_new)
+        why = self.problem()
         if why is not None:
             raise SimulationError(f"simulation blew up at step {step} (t={t_new:g} s): {why}; {self.kept()}; "
                                   f"{self.integrator.blowup_hint()}", self.trajectory(keep_last=True), step=step)
@@ -419,8 +420,9 @@ def report(traj: Trajectory, integrator, stacklevel: int = 2) -> None:
                       f"{fallbacks[0]})", FallbackWarning, stacklevel=stacklevel)
 
 
-def simulate(model, integrator: Integrator, dt: float, steps: int, *, state=None, frame_every: int = 1,
-             record: bool = True, progress=None, check_energy: bool = True) -> Trajectory:
+def simulate(model: Model, integrator: Integrator, dt: float, steps: int, *, state: State | None = None,
+             frame_every: int = 1, record: bool = True, progress: Callable[[int, int], None] | None = None,
+             check_energy: bool = True) -> Trajectory:
     """Run ``steps`` steps of size ``dt`` [s] and return the :class:`Trajectory`.
 
     Parameters

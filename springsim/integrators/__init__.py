@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import warnings
 
+from ..model import Model
 from ..errors import SceneError, UnusedOptionWarning
 from ._base import PRECISION_LOSS_LIMIT, Integrator, StepStats
 from ..errors import ConvergenceWarning, NewtonConvergenceWarning
@@ -43,7 +44,7 @@ def integrator_class(name: str) -> type[Integrator]:
                                        f"{', '.join(INTEGRATORS)}") from None
 
 
-def make_integrator(name: str, model, **options) -> Integrator:
+def make_integrator(name: str, model: Model, **options) -> Integrator:
     """Build the registered integrator ``name`` for ``model`` with keyword ``options``.
 
     Options of implicit integrators (see :class:`ImplicitIntegrator`): ``solver``, ``jacobian``,

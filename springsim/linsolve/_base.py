@@ -176,7 +176,7 @@ class LinearSolver(ABC):
     name: ClassVar[str]
     #: True for solvers that need a symmetric positive definite matrix (CG family);
     #: integrators then default to the ``spd`` Jacobian mode.
-    needs_spd: ClassVar[bool] = False
+    needs_spd: bool = False
 
     def __init__(self, *, rtol: float = 1e-8, atol: float = 0.0, maxiter: int | None = None):
         if not (rtol >= 0 and atol >= 0):

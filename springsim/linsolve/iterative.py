@@ -81,13 +81,11 @@ class LinearSolverIterative(LinearSolver):
         if not isinstance(krylov, KrylovMethod):
             raise TypeError(f"krylov must be a KrylovMethod or a name, got {type(krylov).__name__}")
         self.krylov = krylov
+        self.needs_spd = krylov.needs_spd  # CG needs SPD matrices (the presets also say it as a class attribute)
         self.preconditioner = make_preconditioner(preconditioner)
         self.fallback = _fallback(fallback)
         self.warm_start = bool(warm_start)
 
-    @property
-    def needs_spd(self) -> bool:  # CG needs SPD matrices; presets set it as a class attribute
-        return self.krylov.needs_spd
 
     def _initial_guess(self, A, b, x0):
         """``x0`` if it is a better start than zero (``|b - A x0| < |b|``), else None."""

@@ -19,7 +19,7 @@ line in :data:`PRECONDITIONERS`.
 from __future__ import annotations
 
 import time
-from typing import ClassVar
+from typing import Callable, ClassVar
 
 import numpy as np
 
@@ -142,7 +142,7 @@ def _amg():
 
 
 #: Registry: name -> preconditioner class (``"amg"`` is imported on first use).
-PRECONDITIONERS: dict[str, object] = {
+PRECONDITIONERS: dict[str, Callable] = {
     "none": IdentityPreconditioner,
     "jacobi": JacobiPreconditioner,
     "block-jacobi": BlockJacobiPreconditioner,
@@ -160,5 +160,5 @@ def make_preconditioner(spec, **options) -> Preconditioner:
         raise ValueError(f"preconditioner: unknown name {spec!r}; choose one of {', '.join(PRECONDITIONERS)}")
     cls = PRECONDITIONERS[spec]
     if not isinstance(cls, type):
-        cls = cls()
+        cls = cls()  # a loader, so that the optional heavy module is imported on first use
     return cls(**options)
