@@ -6,7 +6,7 @@ Runs the benchmark cloth with one linear solver, first with the policy of :mod:`
 BLAS library's default threads), optionally with ``--busy`` processes spinning on the other cores as
 on a shared machine. Prints wall and CPU time per step and the largest position difference [m].
 
-    python benchmarks/blas_threads.py --n 16 --solver amg-cg --steps 30 --busy 1
+    python -m benchmarks blas-threads --n 16 --solver amg-cg --steps 30 --busy 1
 """
 
 from __future__ import annotations
@@ -64,8 +64,8 @@ def main(argv=None) -> int:
         for b in busy:
             b.terminate()
     diff = float(np.abs(q1 - q2).max())
-    print(f"| n | solver | busy | one thread: wall / CPU per step | BLAS default: wall / CPU per step | ratio | "
-          f"max position difference [m] |")
+    print("| n | solver | busy | one thread: wall / CPU per step | BLAS default: wall / CPU per step | ratio | "
+          "max position difference [m] |")
     print("|---|---|---|---|---|---|---|")
     print(f"| {a.n} | {a.solver} | {a.busy} | {wall1 * 1e3:.2f} / {cpu1 * 1e3:.2f} ms | {wall2 * 1e3:.2f} / "
           f"{cpu2 * 1e3:.2f} ms | {wall2 / wall1:.2f}x | {diff:.1e} |")

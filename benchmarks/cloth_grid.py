@@ -2,7 +2,7 @@
 
 Usage::
 
-    python benchmarks/cloth_grid.py --n 128 --steps 30 --warmup 9 --integrator linearized_implicit \
+    python -m benchmarks cloth-grid --n 128 --steps 30 --warmup 9 --integrator linearized_implicit \
         --solver amg-cg --rtol 1e-6 [--jacobian spd] [--kd 0] [--json benchmarks/results/cloth_128.json]
 
 Runs :func:`springsim.scene.gallery.benchmark_cloth` (n x n particles, edge y = 0 pinned,

@@ -41,9 +41,9 @@ size); the single-threaded CPU time does much less, so "cheapest" is decided on 
 
 Usage::
 
-    OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 python benchmarks/frame_cost.py            # n = 128 256 512
-    python benchmarks/frame_cost.py --sizes 128 --window 0.25 --ref-ratio 8
-    python benchmarks/frame_cost.py --quick                                            # n = 6 (tests)
+    OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 python -m benchmarks frame-cost            # n = 128 256 512
+    python -m benchmarks frame-cost --sizes 128 --window 0.25 --ref-ratio 8
+    python -m benchmarks frame-cost --quick                                            # n = 6 (tests)
 """
 
 from __future__ import annotations
@@ -53,7 +53,6 @@ import csv
 import gc
 import math
 import os
-import sys
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -61,12 +60,12 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+from springsim.energy import total_energy
 
-from _common import RESULTS_DIR, machine_info, markdown_table, write_csv  # noqa: E402
+from .common import RESULTS_DIR, machine_info, markdown_table, write_csv
 
 __all__ = ["COLUMNS", "CANDIDATE_COLUMNS", "DEFAULT_CANDIDATES", "FRAME_DT", "Candidate", "cloth",
-           "reference_solver", "stiffness_matrix", "omega_max", "explicit_substeps", "run_symplectic",
+           "reference_solver", "omega_max", "explicit_substeps", "run_symplectic",
            "verify_explicit", "parse_candidate", "main"]
 
 #: Frame length [s].
@@ -93,88 +92,25 @@ DEFAULT_CANDIDATES = ("linearized_implicit:60:auto", "linearized_implicit:120:au
 
 
 def cloth(n: int):
-    """The issue-7 cloth: ``benchmark_cloth(n, ke=1e3, ke_shear=1e3, ke_bend=1e2)``."""
-    from springsim.scene.gallery import benchmark_cloth
+    """:func:`springsim.scene.gallery.accuracy_cloth`."""
+    from springsim.scene.gallery import accuracy_cloth
 
-    return benchmark_cloth(n, ke=1e3, ke_shear=1e3, ke_bend=1e2)
+    return accuracy_cloth(n)
 
 
 # -- explicit stability limit -----------------------------------------------------------------------------------
-def stiffness_matrix(assembler, q: np.ndarray, qd: np.ndarray):
-    """``K = -dF/dq`` over the free DOFs (BSR 3x3, exact Jacobian) and the DOF masses (3F,).
+def omega_max(assembler, q, qd=None, **kw) -> dict:
+    """:func:`springsim.analysis.max_frequency` (the largest natural angular frequency at ``(q, qd)``)."""
+    from springsim.analysis import max_frequency
 
-    Assembles ``A = M - 1 * dF/dq`` with springsim's assembler and removes ``M`` from the
-    diagonal blocks (one vectorised update).
-    """
-    A = assembler.assemble(q, qd, 1.0, 0.0, "exact")
-    K = A.bsr.copy()
-    m = assembler.model.particle_mass[assembler.free]
-    K.data[assembler.pattern.diagonal_positions] -= m[:, None, None] * np.eye(3)
-    return K, np.repeat(m, 3)
-
-
-def omega_max(assembler, q: np.ndarray, qd: np.ndarray | None = None, *, max_steps: int = 500,
-              tol: float = 1e-7, seed: int = 0) -> dict:
-    """Largest angular frequency ``sqrt(lambda_max(M^-1 K))`` [rad/s] at ``(q, qd)``.
-
-    Plain Lanczos (three-term recurrence, no reorthogonalisation: the extreme Ritz value is
-    unaffected by the loss of orthogonality) on ``S = M^-1/2 K M^-1/2``, stopped when the top
-    Ritz value changed by less than ``tol`` (relative) over the last 10 steps, after at least 20.
-    The Ritz value converges from below; the Gershgorin bound ``max_i sum_j |K_ij| / m_i``
-    (an upper bound) is returned alongside.
-
-    Returns
-    -------
-    dict
-        ``omega`` [rad/s], ``lambda`` [1/s^2], ``steps`` (Lanczos steps), ``gershgorin``
-        (upper bound on omega [rad/s]).
-    """
-    from scipy.linalg import eigvalsh_tridiagonal
-
-    qd = np.zeros_like(q) if qd is None else qd
-    K, m = stiffness_matrix(assembler, q, qd)
-    s = 1.0 / np.sqrt(m)
-    if m.size == 0:
-        return {"omega": 0.0, "lambda": 0.0, "steps": 0, "gershgorin": 0.0}
-    nb = K.shape[0] // 3
-    rows = np.repeat(np.arange(nb), np.diff(K.indptr))
-    blk = np.abs(K.data).sum(axis=2)  # (nnzb, 3): |row| sums of each block
-    row_abs = np.stack([np.bincount(rows, weights=blk[:, i], minlength=nb) for i in range(3)], axis=1)
-    gersh = float(np.max(row_abs.reshape(-1) / m))
-    rng = np.random.default_rng(seed)
-    v = rng.standard_normal(m.size)
-    v /= np.linalg.norm(v)
-    v_prev = np.zeros_like(v)
-    alphas, betas, tops = [], [], []
-    beta = 0.0
-    for k in range(max_steps):
-        w = s * (K @ (s * v))
-        alpha = float(v @ w)
-        w -= alpha * v + beta * v_prev
-        alphas.append(alpha)
-        theta = eigvalsh_tridiagonal(np.array(alphas), np.array(betas))[-1] if k else alpha
-        tops.append(float(theta))
-        beta = float(np.linalg.norm(w))
-        if beta <= 1e-13 * max(abs(theta), 1e-300):  # invariant subspace: Ritz values exact
-            break
-        if k >= 20 and abs(tops[-1] - tops[-11]) <= tol * abs(tops[-1]):
-            break
-        betas.append(beta)
-        v_prev, v = v, w / beta
-    lam = max(tops[-1], 0.0)
-    return {"omega": math.sqrt(lam), "lambda": lam, "steps": len(tops), "gershgorin": math.sqrt(max(gersh, 0.0))}
+    return max_frequency(assembler, q, qd, **kw)
 
 
 def explicit_substeps(omega: float, frame_dt: float = FRAME_DT) -> int:
-    """Substeps per frame for ``h = frame_dt / S < 2 / omega``: ``S = ceil(frame_dt omega / 2)`` (at least 1)."""
-    if not omega > 0:
-        return 1
-    return max(1, math.ceil(frame_dt * omega / 2.0 * (1.0 + 1e-12)))
+    """:func:`springsim.analysis.explicit_substeps` at the frame rate of this benchmark."""
+    from springsim.analysis import explicit_substeps as substeps
 
-
-def _energy(model, terms, q, qd) -> float:
-    ke = 0.5 * float(np.sum(model.particle_mass[:, None] * qd * qd))
-    return ke + float(sum(t.potential_energy(q) for t in terms))
+    return substeps(omega, frame_dt)
 
 
 def run_symplectic(model, substeps: int, *, window: float, max_steps: int | None = None,
@@ -210,7 +146,7 @@ def run_symplectic(model, substeps: int, *, window: float, max_steps: int | None
     s0, s1 = model.state(), model.state()
     free = model.free_particles
     s0.particle_q[free] += perturb * np.random.default_rng(seed).standard_normal((free.size, 3))
-    e0 = _energy(model, terms, s0.particle_q, s0.particle_qd)
+    e0 = total_energy(model, s0.particle_q, s0.particle_qd, terms)
     scale = float(np.sum(model.particle_mass)) * abs(float(model.gravity)) * 1.0
     gain, detected, k = 0.0, float("nan"), 0
     wall = cpu = 0.0
@@ -222,7 +158,7 @@ def run_symplectic(model, substeps: int, *, window: float, max_steps: int | None
             cpu += time.process_time() - c0
             s0, s1 = s1, s0
             if k % check_every == 0 or k == steps:
-                e = _energy(model, terms, s0.particle_q, s0.particle_qd) if s0.is_finite() else float("inf")
+                e = total_energy(model, s0.particle_q, s0.particle_qd, terms) if s0.is_finite() else float("inf")
                 gain = max(gain, e - e0) if np.isfinite(e) else float("inf")
                 if not gain <= growth_tol * scale:
                     detected = k * h

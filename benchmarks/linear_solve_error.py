@@ -11,24 +11,21 @@ Writes ``results/linear_solve_error.csv``, ``.md`` and ``.png``.
 
 Usage::
 
-    python benchmarks/linear_solve_error.py              # n = 64, 128
-    python benchmarks/linear_solve_error.py --large      # also n = 256
-    python benchmarks/linear_solve_error.py --quick      # n = 8 (tests)
-    python benchmarks/linear_solve_error.py --append --sizes 256 --modes spd   # add rows to the last run's
+    python -m benchmarks linear-solve-error              # n = 64, 128
+    python -m benchmarks linear-solve-error --large      # also n = 256
+    python -m benchmarks linear-solve-error --quick      # n = 8 (tests)
+    python -m benchmarks linear-solve-error --append --sizes 256 --modes spd   # add rows to the last run's
 """
 
 from __future__ import annotations
 
 import argparse
-import sys
 import warnings
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from _common import RESULTS_DIR, markdown_table, pyplot, save_figure, write_csv  # noqa: E402
+from .common import RESULTS_DIR, markdown_table, pyplot, save_figure, write_csv
 
 __all__ = ["COLUMNS", "step_systems", "run", "main"]
 

@@ -11,24 +11,21 @@ writes a log-log plot. Writes ``results/scaling.csv``, ``.md`` and ``.png``.
 
 Usage::
 
-    python benchmarks/scaling.py                       # n = 16 32 64 128 256 512
-    python benchmarks/scaling.py --sizes 16 32 64 128 256 512 1024 --solver amg-cg
-    python benchmarks/scaling.py --quick               # n = 8 16 (tests)
+    python -m benchmarks scaling                       # n = 16 32 64 128 256 512
+    python -m benchmarks scaling --sizes 16 32 64 128 256 512 1024 --solver amg-cg
+    python -m benchmarks scaling --quick               # n = 8 16 (tests)
 """
 
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 import warnings
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from _common import RESULTS_DIR, markdown_table, pyplot, save_figure, write_csv  # noqa: E402
+from .common import RESULTS_DIR, markdown_table, pyplot, save_figure, write_csv
 
 __all__ = ["COLUMNS", "default_solver", "time_steps", "fit_exponent", "main"]
 

@@ -43,28 +43,27 @@ of convergence are fitted on the dt ladder. Writes ``results/speed_vs_error.csv`
 
 Usage::
 
-    python benchmarks/speed_vs_error.py            # default: bounded, ~4.5-5 min of CPU
-    python benchmarks/speed_vs_error.py --quick    # seconds (used by the tests)
-    python benchmarks/speed_vs_error.py --full     # every ladder on every case; hours (not measured)
-    python benchmarks/speed_vs_error.py --sweeps adaptive --cloth 16 --scenes   # one sweep, one case
-    python benchmarks/speed_vs_error.py --from-csv benchmarks/results/speed_vs_error.csv  # re-plot only
+    python -m benchmarks speed-vs-error            # default: bounded, ~4.5-5 min of CPU
+    python -m benchmarks speed-vs-error --quick    # seconds (used by the tests)
+    python -m benchmarks speed-vs-error --full     # every ladder on every case; hours (not measured)
+    python -m benchmarks speed-vs-error --sweeps adaptive --cloth 16 --scenes   # one sweep, one case
+    python -m benchmarks speed-vs-error --from-csv benchmarks/results/speed_vs_error.csv  # re-plot only
 """
 
 from __future__ import annotations
 
 import argparse
 import csv
-import sys
 import time
 import warnings
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+from springsim.energy import total_energy
 
-from _common import (RESULTS_DIR, SCENE_NAMES, benchmark_case, fit_order, markdown_table, position_errors,  # noqa: E402
-                     pyplot, reference_final, save_figure, scene_case, total_energy, write_csv)
+from .common import (RESULTS_DIR, SCENE_NAMES, benchmark_case, fit_order, markdown_table, position_errors,
+                     pyplot, reference_final, save_figure, scene_case, write_csv)
 
 __all__ = ["COLUMNS", "ORDER_COLUMNS", "ALL_SWEEPS", "ADAPTIVE_INTEGRATORS", "TIME_RTOLS", "DEFAULT_BOUNDS",
            "run_case", "classify", "orders", "pareto_plot", "default_bounds", "read_csv", "main"]
@@ -112,7 +111,7 @@ def _is_iterative(solver_cls) -> bool:
 def _energy_scale(case, terms, s0) -> tuple[float, float]:
     """``(E0, E_scale)`` of a case: initial energy and ``max(|E0|, m_total |g| L, KE0)``."""
     model = case.model
-    e0 = total_energy(model, terms, s0.particle_q, s0.particle_qd)
+    e0 = total_energy(model, s0.particle_q, s0.particle_qd, terms)
     g = abs(float(model.gravity))
     e_scale = max(abs(e0), float(np.sum(model.particle_mass)) * g * case.size,
                   0.5 * float(np.sum(model.particle_mass[:, None] * s0.particle_qd**2)), 1e-12)
@@ -188,7 +187,7 @@ def _run(case, ref_q, e_ref_drift, integrator: str, dt: float | None, *, sweep: 
             return row
     s = tr.summary()
     rms, mx = position_errors(tr.q[-1], ref_q, case.size)
-    e1 = total_energy(model, terms, tr.q[-1], tr.qd[-1])
+    e1 = total_energy(model, tr.q[-1], tr.qd[-1], terms)
     row.update(wall_per_sim_s=s["wall_s"] / case.horizon, err_rms=rms, err_max=mx,
                energy_drift=(e1 - e0) / e_scale if np.isfinite(e1) else float("inf"),
                newton_per_step=s["newton_iterations"], linear_per_step=s["linear_iterations"],
@@ -238,7 +237,7 @@ def run_case(case, *, dts, newton_tols, solver_rtols, time_rtols=(), solver_dt: 
     terms = make_force_terms(case.model)
     s0 = case.model.state() if case.state is None else case.state
     e0, e_scale = _energy_scale(case, terms, s0)
-    e1 = total_energy(case.model, terms, ref_q, ref_qd)
+    e1 = total_energy(case.model, ref_q, ref_qd, terms)
     e_ref_drift = (e1 - e0) / e_scale
     log(f"# {case.name}: {case.model.particle_count} particles, reference {ref_m} ({ref_s:.1f} s)")
     rows = []

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from ..builder import ModelBuilder
 
-__all__ = ["benchmark_cloth", "benchmark_cloth_grid", "BENCHMARK_DT"]
+__all__ = ["benchmark_cloth", "benchmark_cloth_grid", "accuracy_cloth", "BENCHMARK_DT"]
 
 #: Time step of the benchmark cloth [s].
 BENCHMARK_DT = 1.0 / 60.0
@@ -45,3 +45,13 @@ def benchmark_cloth(n: int, **options):
     b.add_cloth_grid(**benchmark_cloth_grid(n, **options))
     b.metadata.update(name=f"benchmark_cloth_{n}")
     return b.finalize()
+
+
+def accuracy_cloth(n: int):
+    """The accuracy benchmarks' cloth: the benchmark cloth with structural and shear springs of 1e3 N/m.
+
+    Softer than :func:`benchmark_cloth` (bending springs 1e2 N/m as there), so that its fall from
+    rest buckles within a second: the motion whose error the accuracy and frame-cost benchmarks
+    measure at animation time steps.
+    """
+    return benchmark_cloth(n, ke=1e3, ke_shear=1e3, ke_bend=1e2)

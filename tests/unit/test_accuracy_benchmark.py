@@ -1,26 +1,21 @@
-"""``benchmarks/accuracy_at_animation_steps.py`` at a tiny size: it runs, writes its tables,
+"""``benchmarks/accuracy.py`` at a tiny size: it runs, writes its tables,
 caches the reference and measures the growth of a perturbation."""
 
 from __future__ import annotations
 
 import csv
 import importlib
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-BENCH = Path(__file__).resolve().parents[2] / "benchmarks"
+pytestmark = pytest.mark.slow  # the benchmarks at tiny sizes
+
 
 
 @pytest.fixture()
 def acc(tmp_path, monkeypatch):
-    sys.path.insert(0, str(BENCH))
-    try:
-        mod = importlib.import_module("accuracy_at_animation_steps")
-    finally:
-        sys.path.remove(str(BENCH))
+    mod = importlib.import_module("benchmarks.accuracy")
     monkeypatch.setattr(mod, "RESULTS", tmp_path)
     monkeypatch.setitem(mod.SOLVER, "name", "direct")
     monkeypatch.setitem(mod.SOLVER, "ref_name", "direct")
@@ -103,13 +98,9 @@ def test_sweep_never_measures_the_reference_against_itself(acc, tmp_path):
 
 
 def test_newton_jacobian_modes_runs_each_configuration(acc, tmp_path, capsys):
-    """``benchmarks/newton_jacobian_modes.py`` at a tiny size: one row per method and configuration,
+    """``python -m benchmarks jacobian-modes`` at a tiny size: one row per method and configuration,
     the default Jacobian resolved, escalation switchable, bad configurations rejected."""
-    sys.path.insert(0, str(BENCH))
-    try:
-        mod = importlib.import_module("newton_jacobian_modes")
-    finally:
-        sys.path.remove(str(BENCH))
+    mod = importlib.import_module("benchmarks.jacobian_modes")
     mod.acc = acc  # the fixture's module (results in tmp_path)
     mod.main(["--n", "3", "--steps", "8", "--ref-steps", "40", "--ref-solver", "direct", "--methods", "tr_bdf2",
               "--configs", "direct:default", "direct:spd:noescalate", "cg:default"])

@@ -4,24 +4,19 @@ from __future__ import annotations
 
 import csv
 import importlib
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-BENCH = Path(__file__).resolve().parents[2] / "benchmarks"
+pytestmark = pytest.mark.slow  # the benchmarks at tiny sizes
+
 
 
 @pytest.fixture(scope="module")
 def bench():
     """Import the benchmark modules from ``benchmarks/``."""
-    sys.path.insert(0, str(BENCH))
-    try:
-        yield {name: importlib.import_module(name)
-               for name in ("_common", "speed_vs_error", "linear_solve_error", "scaling")}
-    finally:
-        sys.path.remove(str(BENCH))
+    return {name: importlib.import_module(f"benchmarks.{name}")
+            for name in ("common", "speed_vs_error", "linear_solve_error", "scaling")}
 
 
 def _read(path):
@@ -63,7 +58,7 @@ def test_speed_vs_error_quick(bench, tmp_path):
 
 def test_speed_vs_error_adaptive_sweep(bench):
     """The adaptive sweep on the spring over 0.5 s: a tighter time tolerance gives smaller steps and a smaller error."""
-    mod, c = bench["speed_vs_error"], bench["_common"]
+    mod, c = bench["speed_vs_error"], bench["common"]
     case = c.scene_case("spring", 0.5)
     rows = mod.run_case(case, dts=[], newton_tols=[], solver_rtols=[], time_rtols=[1e-2, 1e-5], sweeps=("adaptive",),
                         log=lambda msg: None)
@@ -80,7 +75,7 @@ def test_speed_vs_error_adaptive_sweep(bench):
 
 def test_speed_vs_error_default_bounds(bench):
     """The bounded default run keeps every sweep's essentials on every case: h = 1/30 ... >= 1/120, adaptive."""
-    mod, c = bench["speed_vs_error"], bench["_common"]
+    mod, c = bench["speed_vs_error"], bench["common"]
     cases = c.scene_cases(0.5) + [c.benchmark_case(n, 0.5) for n in (8, 16, 32)]
     for case in cases:
         b = mod.default_bounds(case)
@@ -128,7 +123,7 @@ def test_reference_agrees_with_springsim_at_tiny_steps(bench):
     from springsim.driver import simulate
     from springsim.integrators import INTEGRATORS, make_integrator
 
-    c = bench["_common"]
+    c = bench["common"]
     name = "tr_bdf2" if "tr_bdf2" in INTEGRATORS else "midpoint"
     for case in (c.scene_case("spring", 0.1), c.benchmark_case(4, 0.1)):
         q_ref, _, _, _ = c.reference_final(case, method="Radau", cache=False)
@@ -140,7 +135,7 @@ def test_reference_agrees_with_springsim_at_tiny_steps(bench):
 
 def test_reference_methods_agree(bench):
     """Radau (sparse Jacobian) and DOP853 references agree on the 4x4 cloth to 1e-9 of its size."""
-    c = bench["_common"]
+    c = bench["common"]
     case = c.benchmark_case(4, 0.1)
     qa = c.reference_final(case, method="Radau", cache=False)[0]
     qb = c.reference_final(case, method="DOP853", cache=False)[0]
@@ -149,7 +144,7 @@ def test_reference_methods_agree(bench):
 
 def test_common_helpers(bench):
     """fit_order recovers a known slope; position_errors is relative and inf for blow-ups; tables render."""
-    c = bench["_common"]
+    c = bench["common"]
     dts = np.array([1 / 60, 1 / 120, 1 / 240, 1 / 480])
     assert c.fit_order(dts, 3.0 * dts**2) == pytest.approx(2.0)
     rng = np.random.default_rng(7)
@@ -166,7 +161,7 @@ def test_common_helpers(bench):
 
 def test_scene_cases_build(bench):
     """The shipped-scene cases build models with a positive size."""
-    c = bench["_common"]
+    c = bench["common"]
     for case in c.scene_cases(0.5):
         assert case.model.particle_count >= 2 and case.size > 0
 
@@ -177,12 +172,20 @@ def test_blas_threads_benchmark_tiny(capsys):
     pytest.importorskip("threadpoolctl")
     from springsim import _threads
 
-    sys.path.insert(0, str(BENCH))
-    try:
-        mod = importlib.import_module("blas_threads")
-    finally:
-        sys.path.remove(str(BENCH))
+    mod = importlib.import_module("benchmarks.blas_threads")
     policy = _threads.single_blas_thread
     assert mod.main(["--n", "4", "--steps", "2", "--solver", "direct"]) == 0
     row = capsys.readouterr().out.strip().splitlines()[-1].split("|")
     assert float(row[-2]) <= 1e-12 and _threads.single_blas_thread is policy
+
+
+def test_one_entry_point(capsys):
+    """``python -m benchmarks`` lists every benchmark; an unknown name is one line and exit 2; a name runs it."""
+    from benchmarks import BENCHMARKS
+    from benchmarks.__main__ import main
+
+    assert main([]) == 0
+    listing = capsys.readouterr().out
+    assert all(name in listing for name in BENCHMARKS)
+    assert main(["nope"]) == 2 and "unknown benchmark 'nope'" in capsys.readouterr().err
+    assert main(["blas-threads", "--n", "3", "--steps", "1", "--solver", "direct"]) == 0

@@ -6,22 +6,17 @@ import argparse
 import csv
 import importlib
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-BENCH = Path(__file__).resolve().parents[2] / "benchmarks"
+pytestmark = pytest.mark.slow  # the benchmarks at tiny sizes
+
 
 
 @pytest.fixture(scope="module")
 def fc():
-    sys.path.insert(0, str(BENCH))
-    try:
-        yield importlib.import_module("frame_cost")
-    finally:
-        sys.path.remove(str(BENCH))
+    yield importlib.import_module("benchmarks.frame_cost")
 
 
 def _read(path):

@@ -7,7 +7,7 @@ import pytest
 
 from helpers import damped_chain, observed_errors
 from springsim import simulate
-from springsim.assembly import dense_system, free_dofs
+from springsim.assembly import dense_system
 from springsim.forces import eval_forces, make_force_terms
 from springsim.integrators import StepStats, make_integrator
 

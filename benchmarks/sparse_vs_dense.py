@@ -17,7 +17,7 @@ reported (max over steps).
 
 Usage::
 
-    python benchmarks/bench_sparse_vs_dense.py [--sizes 16 32 64 128] [--steps 5] [--dense-max 32]
+    python -m benchmarks sparse-vs-dense [--sizes 16 32 64 128] [--steps 5] [--dense-max 32]
 
 Prints a Markdown table and writes ``benchmarks/results/sparse_vs_dense.csv``.
 Times are medians over the steps after one warm-up step (the symbolic phase,
@@ -27,7 +27,6 @@ Times are medians over the steps after one warm-up step (the symbolic phase,
 from __future__ import annotations
 
 import argparse
-import csv
 import platform
 import time
 from pathlib import Path
@@ -39,7 +38,8 @@ from springsim.forces import eval_forces, make_force_terms
 from springsim.integrators import make_integrator
 from springsim.scene import BENCHMARK_DT, benchmark_cloth
 
-RESULTS_DIR = Path(__file__).resolve().parent / "results"
+from .common import RESULTS_DIR, markdown_table, write_csv
+
 
 COLUMNS = ["n", "particles", "dofs_free", "springs", "nnzb", "symbolic_s", "sparse_assembly_s",
            "sparse_solve_s", "sparse_step_s", "nnz_LU", "dense_assembly_s", "dense_solve_s", "dense_step_s",
@@ -97,21 +97,11 @@ def run_size(n: int, steps: int, dense_max: int, h: float = BENCHMARK_DT) -> dic
     return row
 
 
-def _fmt(v) -> str:
-    if isinstance(v, (int, np.integer)):
-        return str(v)
-    if v != v:
-        return "-"
-    return f"{v:.3g}" if abs(v) >= 1e-3 or v == 0 else f"{v:.2e}"
-
-
 def markdown(rows) -> str:
     """The result rows as a Markdown table (times in seconds)."""
     cols = ["n", "dofs_free", "nnzb", "sparse_assembly_s", "sparse_solve_s", "sparse_step_s",
             "dense_assembly_s", "dense_solve_s", "dense_step_s", "rel_diff_dv", "speedup"]
-    lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
-    lines += ["| " + " | ".join(_fmt(r[c]) for c in cols) + " |" for r in rows]
-    return "\n".join(lines)
+    return markdown_table(rows, cols)
 
 
 def main(argv=None) -> int:
@@ -128,11 +118,7 @@ def main(argv=None) -> int:
     print(f"\nlinearized implicit Euler, benchmark cloth, h = 1/60 s, {args.steps} steps, median per step [s]; "
           f"{platform.processor() or platform.machine()}, numpy {np.__version__}\n")
     print(markdown(rows))
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    with open(args.out, "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=COLUMNS)
-        w.writeheader()
-        w.writerows(rows)
+    write_csv(args.out, rows, COLUMNS)
     print(f"\nwrote {args.out}")
     return 0
 

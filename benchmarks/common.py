@@ -3,7 +3,7 @@
 Every benchmark reports speed *and* error. Errors are position errors at the final
 time, RMS and max over particles, divided by the scene's size ``L`` (the largest
 extent of the initial positions, 1 m for the benchmark cloth). Energies are kinetic
-plus :meth:`ForceTerm.potential_energy`, reported relative to ``E_scale = max(|E0|,
+plus every potential (:func:`springsim.energy.total_energy`), reported relative to ``E_scale = max(|E0|,
 m_total |g| L, KE0)``. Results go to ``benchmarks/results/`` (git-ignored); plots
 need matplotlib (``pip install 'springsim[plot]'``), tables do not.
 """
@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ["RESULTS_DIR", "Case", "benchmark_case", "scene_case", "scene_cases", "SCENE_NAMES",
-           "reference_final", "position_errors", "total_energy", "write_csv", "markdown_table",
+           "reference_final", "position_errors", "write_csv", "markdown_table",
            "have_matplotlib", "pyplot", "machine_info", "timed", "fit_order", "fmt"]
 
 #: Output directory (git-ignored).
@@ -67,52 +67,11 @@ def benchmark_case(n: int, horizon: float = 0.5) -> Case:
     return Case(f"cloth{n}", m, _size(m.particle_q), horizon)
 
 
-def _builder_scene(name: str):
-    """Builder versions of ``scenes/{spring,stiff_chain,three_body}.yaml`` (used when the YAML is unavailable)."""
-    from springsim.builder import ModelBuilder
-
-    if name == "spring":
-        # 1 kg hanging from a fixed particle on an undamped 100 N/m spring of rest length 1 m
-        b = ModelBuilder(gravity=-9.81, up_axis="z")
-        b.add_particle((0.0, 0.0, 1.0), mass=1.0, fixed=True)
-        b.add_particle((0.0, 0.0, 0.0), mass=1.0)
-        b.add_spring(0, 1, 100.0, 0.0, rest_length=1.0)
-    elif name == "stiff_chain":
-        # 20 particles 0.05 m apart (0.05 kg, drag 0.01 N s/m), springs 1e5 N/m damped 1 N s/m, released horizontally
-        b = ModelBuilder(gravity=-9.81, up_axis="z")
-        k = 20
-        pos = np.zeros((k, 3))
-        pos[:, 0] = 0.05 * np.arange(k)
-        pos[:, 2] = 1.0
-        fixed = np.zeros(k, dtype=bool)
-        fixed[0] = True
-        b.add_particles(pos, None, 0.05, drag=0.01, fixed=fixed)
-        b.add_springs(np.stack([np.arange(k - 1), np.arange(1, k)], axis=1), 1e5, 1.0)
-    elif name == "three_body":
-        # a heavy central body and two light ones on roughly circular orbits, G = 10, no uniform gravity
-        b = ModelBuilder(gravity=0.0, up_axis="z")
-        b.add_particles([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [-2.0, 0.0, 0.0]],
-                        [[0.0, 0.0, 0.0], [0.0, 10.0, 0.0], [0.0, -7.0710678, 0.0]], [10.0, 0.01, 0.01])
-        b.add_gravitationals(np.array([[0, 1], [0, 2], [1, 2]]), 10.0)
-    else:
-        raise ValueError(f"unknown scene {name!r}; choose one of {', '.join(SCENE_NAMES)}")
-    b.metadata.update(name=name)
-    return b.finalize()
-
-
 def scene_case(name: str, horizon: float = 0.5) -> Case:
-    """A shipped scene: ``scenes/<name>.yaml`` through the YAML loader if both exist, else the builder version."""
-    path = Path(__file__).resolve().parent.parent / "scenes" / f"{name}.yaml"
-    model = None
-    if path.exists():
-        try:
-            from springsim.scene.yaml_io import load_scene
+    """A shipped scene, ``scenes/<name>.yaml``."""
+    from springsim.scene import load_scene
 
-            model = load_scene(path).model
-        except ImportError:  # the YAML loader is optional for the benchmarks
-            model = None
-    if model is None:
-        model = _builder_scene(name)
+    model = load_scene(Path(__file__).resolve().parent.parent / "scenes" / f"{name}.yaml").model
     return Case(name, model, _size(model.particle_q), horizon)
 
 
@@ -183,14 +142,6 @@ def position_errors(q: np.ndarray, q_ref: np.ndarray, size: float) -> tuple[floa
         return float(np.sqrt(np.mean(d**2)) / size), float(np.max(d) / size)
 
 
-def total_energy(model, terms, q: np.ndarray, qd: np.ndarray) -> float:
-    """Kinetic plus potential energy [J] of the free particles at ``(q, qd)``."""
-    free = model.free_particles
-    with np.errstate(over="ignore", invalid="ignore"):
-        ke = 0.5 * float(np.sum(model.particle_mass[free, None] * qd[free] ** 2))
-        return ke + float(sum(t.potential_energy(q) for t in terms))
-
-
 def timed(fn, *args, **kwargs):
     """Call ``fn`` and return ``(result, seconds)``."""
     t0 = time.perf_counter()
@@ -224,8 +175,13 @@ def fmt(v) -> str:
     return str(v)
 
 
-def write_csv(path, rows: list[dict], columns: list[str]) -> None:
-    """Write ``rows`` (dicts) to ``path`` with the given column order."""
+def _as_dicts(rows, columns) -> list[dict]:
+    return [r if isinstance(r, dict) else dict(zip(columns, r)) for r in rows]
+
+
+def write_csv(path, rows: list, columns: list[str]) -> None:
+    """Write ``rows`` (dicts, or sequences in ``columns`` order) to ``path`` with the given column order."""
+    rows = _as_dicts(rows, columns)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with open(path, "w", newline="") as fh:
@@ -235,8 +191,9 @@ def write_csv(path, rows: list[dict], columns: list[str]) -> None:
             w.writerow({c: r.get(c, "") for c in columns})
 
 
-def markdown_table(rows: list[dict], columns: list[str]) -> str:
-    """A GitHub markdown table of ``rows`` restricted to ``columns``."""
+def markdown_table(rows: list, columns: list[str]) -> str:
+    """A GitHub markdown table of ``rows`` (dicts, or sequences in ``columns`` order) restricted to ``columns``."""
+    rows = _as_dicts(rows, columns)
     lines = ["| " + " | ".join(columns) + " |", "|" + "|".join("---" for _ in columns) + "|"]
     for r in rows:
         lines.append("| " + " | ".join(fmt(r.get(c, "")) for c in columns) + " |")

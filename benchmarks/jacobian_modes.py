@@ -9,7 +9,7 @@ the RMS position error at ``T`` against the reference.
 
 Example (docs/accuracy.md, "Newton, the Jacobian mode and the linear solver")::
 
-    python benchmarks/newton_jacobian_modes.py --n 64 --ref-steps 1170 --methods tr_bdf2 bdf2 \\
+    python -m benchmarks jacobian-modes --n 64 --ref-steps 1170 --methods tr_bdf2 bdf2 \\
         --configs auto:default auto:default:noescalate direct:exact amg-gmres:exact amg-cg:exact
 """
 
@@ -19,7 +19,7 @@ import argparse
 import time
 import warnings
 
-import accuracy_at_animation_steps as acc
+from . import accuracy as acc
 from springsim.driver import simulate
 from springsim.integrators import make_integrator
 

@@ -28,11 +28,11 @@ Method runs use ``--linear-rtol`` (default 1e-6), the reference 1e-10 (``direct`
 
 Usage::
 
-    python benchmarks/accuracy_at_animation_steps.py                 # n = 32 and 64
-    python benchmarks/accuracy_at_animation_steps.py --sizes 16 --ref-steps 1170
-    python benchmarks/accuracy_at_animation_steps.py --sizes 64 --ref-steps 1170 --validate-n 0 --no-sweep \
+    python -m benchmarks accuracy                 # n = 32 and 64
+    python -m benchmarks accuracy --sizes 16 --ref-steps 1170
+    python -m benchmarks accuracy --sizes 64 --ref-steps 1170 --validate-n 0 --no-sweep \
         --skip-spring --solver direct --ref-solver amg-cg --h60-methods implicit_euler bdf2 tr_bdf2
-    python benchmarks/accuracy_at_animation_steps.py --sizes 32 --ref-steps 4680 --validate-n 0 --solver amg-cg \
+    python -m benchmarks accuracy --sizes 32 --ref-steps 4680 --validate-n 0 --solver amg-cg \
         --skip-h60 --sweep-steps 70 140 280 560 1170 2340 4680           # 1 cm and 1 mm costs
 
 ``--t-end T`` changes the horizon (output files and the saved reference get a ``_T<T>`` suffix);
@@ -44,7 +44,6 @@ Writes ``benchmarks/results/accuracy_at_animation_steps_*.csv``.
 from __future__ import annotations
 
 import argparse
-import csv
 import time
 import warnings
 from pathlib import Path
@@ -54,12 +53,15 @@ import numpy as np
 from springsim import ModelBuilder, make_integrator, simulate
 from springsim.cli.argtypes import positive_float
 from springsim.adaptive import simulate_adaptive
-from springsim.forces import make_force_terms
 from springsim.integrators import ImplicitIntegrator, StepStats
 from springsim.reference import reference_trajectory
-from springsim.scene.gallery import benchmark_cloth
+from springsim.energy import total_energy
+from springsim.scene.gallery import accuracy_cloth
 
-RESULTS = Path(__file__).resolve().parent / "results"
+from . import common
+from .common import markdown_table
+
+RESULTS = common.RESULTS_DIR
 T_DEFAULT = 1.17
 #: horizon [s] (``--t-end``)
 T_END = T_DEFAULT
@@ -97,7 +99,8 @@ class Trapezoidal(ImplicitIntegrator):
 
 
 def cloth(n):
-    return benchmark_cloth(n, ke=1e3, ke_shear=1e3, ke_bend=1e2)
+    """:func:`springsim.scene.gallery.accuracy_cloth`."""
+    return accuracy_cloth(n)
 
 
 def integrator(name, model, ref=False, **kw):
@@ -132,17 +135,13 @@ def rms(a, b):
 
 
 def energy(model, q, v):
-    """Kinetic + potential energy [J]."""
-    terms = make_force_terms(model, skip_fixed=False)
-    return 0.5 * float(np.sum(model.particle_mass[:, None] * v * v)) + sum(t.potential_energy(q) for t in terms)
+    """Kinetic + potential energy [J] (:func:`springsim.energy.total_energy`)."""
+    return float(total_energy(model, q, v))
 
 
 def table(title, header, rows):
     print(f"\n## {title}\n")
-    print("| " + " | ".join(header) + " |")
-    print("|" + "---|" * len(header))
-    for r in rows:
-        print("| " + " | ".join(f"{x:.3g}" if isinstance(x, float) else str(x) for x in r) + " |")
+    print(markdown_table(rows, header))
 
 
 def horizon_tag():
@@ -151,12 +150,8 @@ def horizon_tag():
 
 
 def write_csv(name, header, rows):
-    RESULTS.mkdir(parents=True, exist_ok=True)
     tag = horizon_tag() + ("" if H_MAX is None else f"_hmax{H_MAX:g}")
-    with open(RESULTS / f"accuracy_at_animation_steps_{name}{tag}.csv", "w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(header)
-        w.writerows(rows)
+    common.write_csv(RESULTS / f"accuracy_at_animation_steps_{name}{tag}.csv", rows, header)
 
 
 def validate_reference(n, ref_steps):
