@@ -224,7 +224,7 @@ class ModelBuilder:
         ke
             Stiffness [N/m], >= 0.
         kd
-            Damping [N s/m] along the spring direction (seed eq. 8), >= 0.
+            Damping [N s/m] along the spring direction (PA2 eq. 8), >= 0.
         rest_length
             Rest length l0 [m]; ``None`` takes the distance at :meth:`finalize`.
         """

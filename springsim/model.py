@@ -55,7 +55,7 @@ class Model:
     spring_stiffness : ndarray, shape (S,)
         ke [N/m].
     spring_damping : ndarray, shape (S,)
-        kd [N s/m] of the damping force along the spring (seed eq. 8).
+        kd [N s/m] of the damping force along the spring (PA2 eq. 8).
     spring_rest_length : ndarray, shape (S,)
         l0 [m].
     gravitational_indices : ndarray of int64, shape (P, 2)

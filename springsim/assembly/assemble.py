@@ -1,6 +1,6 @@
 """Numeric phase: assemble ``A = M - a dF/dq - b dF/dqd`` over the free DOFs.
 
-Implicit Euler uses ``(a, b) = (h^2, h)`` (seed eq. 1); BDF2 ``((2h/3)^2, 2h/3)``.
+Implicit Euler uses ``(a, b) = (h^2, h)`` (PA2 eq. 1); BDF2 ``((2h/3)^2, 2h/3)``.
 
 Design: at construction (the symbolic phase, once per model) every block a term
 can emit is mapped to its destination in the BSR data array; blocks that touch a
@@ -95,7 +95,7 @@ def _scatter_add(S: sp.csr_matrix, X: np.ndarray, Y: np.ndarray) -> None:
 
     Accumulates in place with scipy's compiled CSR kernel when ``Y`` is C-contiguous, so no
     (nnzb, 9) temporary is allocated: at n = 256 that temporary is 61 MB per assembly, and
-    fresh large allocations cost page faults on every call (docs/solvers.md). Otherwise
+    fresh large allocations cost page faults on every call (BENCHMARKS.md, section 5). Otherwise
     (or without the kernel) the public product.
     """
     if _csr_matvecs is not None and Y.flags.c_contiguous:

@@ -1,4 +1,4 @@
-"""Dense reference assembly, deliberately naive: all 3N DOFs and the seed's identity rows.
+"""Dense reference assembly, deliberately naive: all 3N DOFs and the identity rows of PA2, section 7.
 
 For tests and small scenes only (memory is O(N^2)).
 """

@@ -1,6 +1,6 @@
-"""Fixed particles: row-and-column elimination versus the seed's identity rows.
+"""Fixed particles: row-and-column elimination versus the identity rows of PA2, section 7.
 
-The seed (section 7) keeps all 3N unknowns and, for each fixed DOF, zeroes its
+PA2 (section 7) keeps all 3N unknowns and, for each fixed DOF, zeroes its
 row and column of ``A``, puts 1 on the diagonal and 0 in ``b``. The solution then
 has ``x_fixed = 0`` and, because the fixed columns are zero, the free rows read
 ``A_ff x_f = b_f``. Elimination solves exactly that reduced system, so both give
@@ -35,7 +35,7 @@ def expand(x_free: np.ndarray, free: np.ndarray, size: int, fill: float = 0.0) -
 
 
 def enforce_identity(A: np.ndarray, b: np.ndarray, fixed_dofs: np.ndarray):
-    """Seed section 7 on a dense system: zero fixed rows/columns, 1 on their diagonal, 0 in ``b``."""
+    """PA2 section 7 on a dense system: zero fixed rows/columns, 1 on their diagonal, 0 in ``b``."""
     A = np.array(A, dtype=np.float64)
     b = np.array(b, dtype=np.float64)
     A[fixed_dofs, :] = 0.0

@@ -132,7 +132,7 @@ class ForceTerm(ABC):
         which the term may keep its large temporaries between calls (:func:`scratch`); the
         returned blocks may then live in it, valid until the next call with the same dict.
         The assembler passes one per term, so repeated assemblies allocate nothing large
-        (fresh multi-MB arrays cost page faults on every call: docs/solvers.md). Overrides must
+        (fresh multi-MB arrays cost page faults on every call: BENCHMARKS.md, section 5). Overrides must
         accept ``work`` (a term with small temporaries may ignore it).
         """
         return None, None

@@ -1,4 +1,4 @@
-"""Linear drag ``F_i = -beta_i qd_i`` (seed eq. 5), with ``dF/dqd = -beta_i I``."""
+"""Linear drag ``F_i = -beta_i qd_i`` (PA2 eq. 5), with ``dF/dqd = -beta_i I``."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Pairwise gravitational attraction (seed section 5.5).
+"""Pairwise gravitational attraction (PA2 sec. 5.5).
 
 For a pair (i, j) with ``c = G m_i m_j``, ``d = q_i - q_j``, ``l = |d|``, ``n = d/l``::
 

@@ -1,4 +1,4 @@
-"""Constant gravity field: ``F_i = m_i g`` (seed 5.1). No Jacobian."""
+"""Constant gravity field: ``F_i = m_i g`` (PA2 sec. 5.1). No Jacobian."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Damped springs (seed eqs. 6-8).
+"""Damped springs (PA2 eqs. 6-8).
 
 For a pair (i, j) with ``d = q_i - q_j``, ``l = |d|``, ``n = d / l``, ``v = qd_i - qd_j``,
 stiffness ``k``, damping ``b`` and rest length ``l0``, the force on i (minus it on j) is::

@@ -10,11 +10,11 @@ for known ``q_hat``, ``v_hat`` and coefficient ``c``. Newton's update ``dv`` sol
     [M - c^2 dF/dq - c dF/dqd] dv = R(v_i)                  (A = M - a dF/dq - b dF/dqd)
 
 with the Jacobians at ``(q_hat + c v_i, v_i)``. Implicit Euler is ``c = h``,
-``q_hat = q^n``, ``v_hat = qd^n`` (seed eq. 1-2); one iteration from ``v_0 = qd^n`` is
-linearized implicit Euler (seed eq. 3-4). The system covers free DOFs only (row and
+``q_hat = q^n``, ``v_hat = qd^n`` (PA2 eq. 1-2); one iteration from ``v_0 = qd^n`` is
+linearized implicit Euler (PA2 eq. 3-4). The system covers free DOFs only (row and
 column elimination, see :mod:`springsim.assembly.fixed`).
 
-Stopping rule. The seed's rule stops when the update is small, ``|dv|_2 < newton_tol``.
+Stopping rule. PA2's rule stops when the update is small, ``|dv|_2 < newton_tol``.
 An update can be small while the iterate is far from the root: when ``c^2 dF/dq`` dwarfs
 ``M`` (huge steps, very stiff springs) a position error ``e_q`` shows up in ``v`` only as
 ``e_q / c``. So a stage also has to balance its equation: the residual at the returned
@@ -70,9 +70,9 @@ class ImplicitIntegrator(Integrator):
         Jacobian mode; default ``spd`` for solvers that need SPD matrices at this size
         (:meth:`~springsim.linsolve.LinearSolver.needs_spd_for`), else ``exact``.
     newton_tol : float
-        Update tolerance: a stage may stop when ``|dv|_2 < newton_tol`` [m/s] (seed: 1e-5).
+        Update tolerance: a stage may stop when ``|dv|_2 < newton_tol`` [m/s] (PA2: 1e-5).
     newton_maxiter : int or None
-        Iteration limit; default the class's ``default_newton_maxiter``: the seed's 5 for
+        Iteration limit; default the class's ``default_newton_maxiter``: PA2's 5 for
         implicit Euler, 50 for BDF2 and TR-BDF2, which retake a step whose stage did not
         converge with implicit Euler and so must let Newton finish (docs/accuracy.md).
     residual_rtol : float
@@ -87,7 +87,7 @@ class ImplicitIntegrator(Integrator):
         norm decreases (Armijo). Full steps are taken near the solution, so quadratic
         convergence is kept; far from it (stiff cloth at large ``h``) plain Newton
         diverges. Only used when Newton runs to convergence (``converge=True``), so
-        linearized implicit Euler is seed eq. 3 exactly.
+        linearized implicit Euler is PA2 eq. 3 exactly.
     min_step : float
         Smallest line-search step.
     solver_options : dict, optional

@@ -1,4 +1,4 @@
-"""Full implicit Euler (seed eqs. 1-2), solved by Newton.
+"""Full implicit Euler (PA2 eqs. 1-2), solved by Newton.
 
 ``qd^{n+1} = qd^n + h M^-1 F(q^{n+1}, qd^{n+1})``, ``q^{n+1} = q^n + h qd^{n+1}``; each
 Newton iteration solves ``[M - h^2 dF/dq - h dF/dqd] dqd = -M (qd_i - qd^n) + h F(q^n + h qd_i, qd_i)``

@@ -1,9 +1,9 @@
-"""Linearized implicit Euler (seed eqs. 3-4): one Newton iteration of implicit Euler.
+"""Linearized implicit Euler (PA2 eqs. 3-4): one Newton iteration of implicit Euler.
 
 ``[M - h^2 dF/dq - h dF/dqd] dqd = h F(q^n + h qd^n, qd^n)`` with the Jacobians at
 ``(q^n + h qd^n, qd^n)``; then ``qd^{n+1} = qd^n + dqd``, ``q^{n+1} = q^n + h qd^{n+1}``.
 
-The Jacobian mode defaults as for every implicit integrator: ``exact`` (seed eq. 3 with the
+The Jacobian mode defaults as for every implicit integrator: ``exact`` (PA2 eq. 3 with the
 true Jacobian) with solvers that take any matrix (``dense``, ``direct``, ``amg-gmres``, and
 ``auto`` up to its direct-solver size), ``spd`` with CG-type solvers, which need it.
 
@@ -29,7 +29,7 @@ __all__ = ["IntegratorLinearizedImplicit"]
 
 
 class IntegratorLinearizedImplicit(ImplicitIntegrator):
-    """One linear solve per step (seed eq. 3). Options as :class:`ImplicitIntegrator`;
+    """One linear solve per step (PA2 eq. 3). Options as :class:`ImplicitIntegrator`;
     ``newton_tol``, ``newton_maxiter``, ``residual_rtol`` and ``line_search`` are accepted but
     unused: the one Newton step is never checked, repeated or shortened."""
 

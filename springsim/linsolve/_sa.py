@@ -1,10 +1,9 @@
 """Smoothed-aggregation setup for symmetric block (BSR) systems, built from pyamg's parts.
 
-pyamg's :func:`pyamg.smoothed_aggregation_solver` spends about a third of its setup on
-the benchmark cloth in the spectral-radius estimate of the Jacobi prolongation smoother
-(restarted Arnoldi on the non-symmetric ``D^-1 A``: ~120 matrix-vector products and
-dense re-orthogonalisation at n = 256), and recomputes strength and aggregates although
-the cloth's connectivity never changes. This module builds the same hierarchy
+pyamg's :func:`pyamg.smoothed_aggregation_solver` estimates the spectral radius of the Jacobi
+prolongation smoother by restarted Arnoldi on the non-symmetric ``D^-1 A`` (about a third of its
+setup on the benchmark cloth), and recomputes strength and aggregates although a cloth's
+connectivity never changes. This module builds the same hierarchy
 (symmetric strength, standard aggregation, candidate fitting, one Jacobi step with the
 inverse block diagonal, Galerkin products) with two differences:
 
@@ -17,10 +16,8 @@ inverse block diagonal, Galerkin products) with two differences:
   fixed, so aggregates from an earlier matrix with the same pattern stay good (the
   prolongator itself is always rebuilt from the current matrix and candidates).
 
-Measured on the benchmark cloth at n = 256 (195,840 DOFs, step 15 of the fall, one
-core): setup 0.97 s with reused aggregates (1.6 s with fresh ones, first call) against
-1.6 s for pyamg's with the same options; the same levels but the coarsest (aggregation
-is identical, 195,840 / 43,860 / 5,130 DOFs) and the same 8 CG iterations to 1e-6.
+It gives pyamg's levels (aggregation identical) and the same CG iterations, with a setup about
+40 % shorter (BENCHMARKS.md, section 5).
 """
 
 from __future__ import annotations
@@ -45,7 +42,7 @@ def bsr_block_diagonal(A: sp.bsr_matrix) -> np.ndarray:
 
 def _block_diagonal_operator(D: np.ndarray) -> sp.bsr_matrix:
     """``D`` (nb, bs, bs) as a block-diagonal BSR matrix: its compiled matrix-vector product is
-    about twice as fast as ``einsum`` over the blocks (n = 256: 1.5 ms against 2.9 ms)."""
+    about twice as fast as ``einsum`` over the blocks."""
     nb, bs = D.shape[0], D.shape[1]
     return sp.bsr_matrix((D, np.arange(nb), np.arange(nb + 1)), shape=(nb * bs, nb * bs))
 
@@ -149,7 +146,7 @@ def smoothed_aggregation_levels(A: sp.bsr_matrix, B: np.ndarray, *, theta: float
         D = bsr_block_diagonal(Ak)
         Dinv = np.linalg.inv(D)
         # the smoothers' block inverse too: pyamg's ``get_block_diag`` returns ``A.block_D_inv`` when
-        # set, so each level inverts its diagonal once instead of three times (n = 256: 0.05 s a setup)
+        # set, so each level inverts its diagonal once instead of three times
         Ak.block_D_inv = Dinv
         rho = lanczos_rho(Ak, D, Dinv, steps=lanczos_steps)
         if not (np.isfinite(rho) and rho > 0.0):

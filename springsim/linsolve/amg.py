@@ -27,7 +27,7 @@ implicit system's 3x3 block structure:
   the cooldown doubles after every stale rebuild (up to ``max_cooldown``) and resets when reuse
   succeeds, so a fast-moving phase wastes one attempt per doubling.
 
-The measurements behind these choices are in docs/solvers.md.
+The measurements behind these choices are in BENCHMARKS.md, section 5.
 """
 
 from __future__ import annotations
@@ -71,9 +71,8 @@ class BackwardBlockGaussSeidel:
 
     The same sweep as pyamg's ``block_gauss_seidel(..., sweep="backward")`` (equal up to
     round-off), but pyamg's compiled kernel walks the rows backwards at about half the
-    speed of its forward walk (n = 256 benchmark cloth, 195,840 DOFs: 36.6 ms against
-    18.7 ms per sweep including the two vector reversals; one matrix-vector product 7 ms).
-    The reversed copy costs one pass over the matrix data per hierarchy build.
+    speed of its forward walk; the reversed copy costs one pass over the matrix data per
+    hierarchy build (BENCHMARKS.md, section 5).
 
     Called as a pyamg smoother, ``smoother(A, x, b)``, updating ``x`` in place.
     """

@@ -1,35 +1,17 @@
-"""``auto``: picks a solver by system size, symmetry and definiteness.
+"""``auto``: picks a solver by system size and symmetry.
 
-Rule (crossover measured with ``benchmarks/cloth_grid.py``, linearized implicit Euler
-on the benchmark cloth, steps 10-30, rtol 1e-6; see docs/solvers.md):
-
-* ``3F <= DIRECT_MAX_DOFS``: ``direct`` (SuperLU). Below the crossover factorisation
-  beats an AMG setup plus iterations, and it is exact for indefinite and
-  non-symmetric matrices alike. Measured median solve time per step (s), ``spd`` mode:
-
-  =====  ======  ======  =======
-  n      DOFs    direct  amg-cg
-  =====  ======  ======  =======
-  16        720  0.0027  0.0140
-  24      1,656  0.018   0.033
-  32      2,976  0.019   0.019
-  48      6,768  0.070   0.045
-  64     12,096  0.23    0.11
-  96     27,360  0.59    0.36
-  128    48,768  1.73    0.84
-  =====  ======  ======  =======
-
-  (2 cores shared with other jobs; the crossover lies near 3,000-5,000 DOFs, and
-  SuperLU's fill grows faster than AMG's linear cost beyond it.)
-* larger and symmetric (``symmetric``/``spd`` modes, or undamped ``exact``):
-  ``amg-cg``. If the matrix is indefinite CG detects it and falls back to ``direct``.
+* ``3F <= direct_max_dofs`` (default :data:`DIRECT_MAX_DOFS`, 4,000): ``direct`` (SuperLU). Below
+  this size a factorisation beats an AMG setup plus its iterations, and it is exact for indefinite
+  and non-symmetric matrices alike; above it SuperLU's fill grows faster than AMG's linear cost
+  (the crossover, 3,000 to 5,000 DOFs on the benchmark cloth, is measured in BENCHMARKS.md, section 5).
+* larger and symmetric (``symmetric``/``spd`` modes, or undamped ``exact``): ``amg-cg``; if the
+  matrix is indefinite, CG detects it and hands over to ``direct``.
 * larger and non-symmetric (``exact`` with damping): ``amg-gmres``.
 
-``needs_spd`` is True, but :meth:`LinearSolverAuto.needs_spd_for` says so only above
-``direct_max_dofs``: implicit integrators give ``auto`` the ``exact`` mode on systems the
-direct solver takes (Newton's quadratic convergence, and the true gravitational Jacobian:
-with ``spd`` implicit Euler at h = 1/60 s is unstable on ``scenes/three_body.yaml``), and
-the ``spd`` mode on larger ones, where CG needs it.
+:meth:`LinearSolverAuto.needs_spd_for` asks integrators for the ``spd`` mode only above
+``direct_max_dofs``: below it they keep the ``exact`` Jacobian (quadratic Newton convergence, and
+the true gravitational Jacobian, with which implicit Euler stays stable on close passes).
+:attr:`LinearSolverAuto.last_choice` names the solver used for the last system.
 """
 
 from __future__ import annotations
@@ -40,7 +22,7 @@ from .iterative import LinearSolverAMGCG, LinearSolverAMGGMRES
 
 __all__ = ["LinearSolverAuto", "DIRECT_MAX_DOFS"]
 
-#: Measured crossover [DOFs]: below it ``direct`` is faster per step than ``amg-cg``.
+#: Largest system [DOFs] ``auto`` gives to ``direct`` (the measured crossover, BENCHMARKS.md).
 DIRECT_MAX_DOFS = 4000
 
 
