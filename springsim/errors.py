@@ -12,7 +12,7 @@ from __future__ import annotations
 
 __all__ = ["SpringsimError", "SceneError", "SceneTypeError", "SimulationError", "SolverError",
            "SimulationInterrupted", "SpringsimWarning", "ConvergenceWarning", "FallbackWarning",
-           "NewtonConvergenceWarning", "UnusedOptionWarning"]
+           "NewtonConvergenceWarning", "UnusedOptionWarning", "registered"]
 
 
 class SpringsimError(Exception):
@@ -38,6 +38,14 @@ class SceneError(SpringsimError, ValueError):
 
 class SceneTypeError(SceneError, TypeError):
     """Scene or model input of the wrong type (e.g. a string where a number belongs)."""
+
+
+def registered(registry: dict, name, *, param: str, what: str):
+    """``registry[name]``, or a :class:`SceneError` naming ``param`` and listing the registered names."""
+    try:
+        return registry[name]
+    except (KeyError, TypeError):
+        raise SceneError(param, f"unknown {what} {name!r:.60}; choose one of {', '.join(registry)}") from None
 
 
 class SolverError(SpringsimError):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import warnings
 
 from ..model import Model
-from ..errors import SceneError, UnusedOptionWarning
+from ..errors import UnusedOptionWarning, registered
 from ._base import PRECISION_LOSS_LIMIT, Integrator, StepStats
 from ..errors import ConvergenceWarning, NewtonConvergenceWarning
 from ._implicit import ImplicitIntegrator
@@ -37,11 +37,7 @@ INTEGRATORS: dict[str, type[Integrator]] = {
 
 def integrator_class(name: str) -> type[Integrator]:
     """The registered integrator class ``name``; a SceneError naming ``integrator`` and the choices if unknown."""
-    try:
-        return INTEGRATORS[name]
-    except (KeyError, TypeError):
-        raise SceneError("integrator", f"unknown integrator {name!r:.60}; choose one of "
-                                       f"{', '.join(INTEGRATORS)}") from None
+    return registered(INTEGRATORS, name, param="integrator", what="integrator")
 
 
 def make_integrator(name: str, model: Model, **options) -> Integrator:

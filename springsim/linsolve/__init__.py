@@ -10,7 +10,7 @@ chooses among them by size and symmetry. Adding a solver is a module plus one li
 
 from __future__ import annotations
 
-from ..errors import SceneError
+from ..errors import registered
 from ._base import BACKWARD_TOL, LinearSolver, LinearSolveResult, backward_error, relative_residual
 from .auto import LinearSolverAuto
 from .dense import LinearSolverDense
@@ -37,11 +37,7 @@ LINEAR_SOLVERS: dict[str, type[LinearSolver]] = {
 
 def linear_solver_class(name: str) -> type[LinearSolver]:
     """The registered solver class ``name``; a SceneError naming ``linear_solver`` and the choices if unknown."""
-    try:
-        return LINEAR_SOLVERS[name]
-    except (KeyError, TypeError):
-        raise SceneError("linear_solver", f"unknown linear solver {name!r:.60}; choose one of "
-                                          f"{', '.join(LINEAR_SOLVERS)}") from None
+    return registered(LINEAR_SOLVERS, name, param="linear_solver", what="linear solver")
 
 
 def make_linear_solver(name: str | LinearSolver, **options) -> LinearSolver:

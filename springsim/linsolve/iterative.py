@@ -28,6 +28,7 @@ import time
 
 import numpy as np
 
+from ..errors import registered
 from ._base import LinearSolver, LinearSolveResult
 from .krylov import KRYLOV_METHODS, KrylovInfo, KrylovMethod
 from .preconditioners import Preconditioner, make_preconditioner
@@ -75,9 +76,7 @@ class LinearSolverIterative(LinearSolver):
                  fallback: LinearSolver | str | None = "direct", warm_start: bool = True):
         super().__init__(rtol=rtol, atol=atol, maxiter=maxiter)
         if isinstance(krylov, str):
-            if krylov not in KRYLOV_METHODS:
-                raise ValueError(f"krylov: unknown method {krylov!r}; choose one of {', '.join(KRYLOV_METHODS)}")
-            krylov = KRYLOV_METHODS[krylov]()
+            krylov = registered(KRYLOV_METHODS, krylov, param="krylov", what="Krylov method")()
         if not isinstance(krylov, KrylovMethod):
             raise TypeError(f"krylov must be a KrylovMethod or a name, got {type(krylov).__name__}")
         self.krylov = krylov

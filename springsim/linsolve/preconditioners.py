@@ -23,6 +23,8 @@ from typing import Callable, ClassVar
 
 import numpy as np
 
+from ..errors import registered
+
 __all__ = ["Preconditioner", "IdentityPreconditioner", "JacobiPreconditioner", "BlockJacobiPreconditioner",
            "PRECONDITIONERS", "make_preconditioner", "block_diagonal"]
 
@@ -156,9 +158,7 @@ def make_preconditioner(spec, **options) -> Preconditioner:
         if options:
             raise TypeError(f"options {sorted(options)} need a preconditioner name, not an instance")
         return spec
-    if spec not in PRECONDITIONERS:
-        raise ValueError(f"preconditioner: unknown name {spec!r}; choose one of {', '.join(PRECONDITIONERS)}")
-    cls = PRECONDITIONERS[spec]
+    cls = registered(PRECONDITIONERS, spec, param="preconditioner", what="preconditioner")
     if not isinstance(cls, type):
         cls = cls()  # a loader, so that the optional heavy module is imported on first use
     return cls(**options)

@@ -232,7 +232,7 @@ def test_fallback_is_an_object():
     res = LinearSolverIterative("cg", "block-jacobi", rtol=RTOL, fallback=LinearSolverDense()).solve(A, b)
     assert res.converged and res.method == "iterative->dense" and res.fallback.startswith("iterative: ")
     np.testing.assert_allclose(D @ res.x, b, rtol=0, atol=1e-9 * np.abs(b).max())
-    with pytest.raises(ValueError, match="unknown method"):
+    with pytest.raises(ValueError, match="unknown Krylov method"):
         LinearSolverIterative("bicg")
-    with pytest.raises(ValueError, match="unknown name"):
+    with pytest.raises(ValueError, match="unknown preconditioner"):
         LinearSolverIterative("cg", "ilu")
