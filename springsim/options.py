@@ -133,7 +133,7 @@ class SolverConfig:
     duration: float | None = option(None, kind="float", cli="--duration", metavar="T", lo=0.0,
                                     help="simulated time [s] (steps = ceil(T/dt)); give steps or duration")
     linear_solver: str | None = option(None, kind="name", cli="--solver", metavar="NAME", to="integrator",
-                                       kwarg="solver", help="linear solver of implicit integrators")
+                                       kwarg="solver", help="linear solver of implicit integrators (default: auto)")
     jacobian: str | None = option(None, kind="name", cli="--jacobian", metavar="MODE", to="integrator",
                                   help="Jacobian mode (default: exact where the solver takes any matrix, else spd)")
     linear_rtol: float | None = option(None, kind="float", cli="--rtol", metavar="R", lo=0.0, strict=True,

@@ -155,7 +155,7 @@ def summary_lines(scene, cfg, integrator, traj) -> list[tuple[str, str]]:
     ]
     if integrator.implicit:
         solver = integrator.solver
-        chosen = f" -> {solver.last_choice}" if getattr(solver, "last_choice", None) else ""
+        chosen = f" -> {solver.last_choice}: {solver.last_reason}" if getattr(solver, "last_choice", None) else ""
         rows.append(("integrator", f"{cfg.integrator} (linear solver {solver.name}{chosen}, "
                                    f"jacobian {integrator.jacobian})"))
     else:

@@ -65,7 +65,8 @@ class ImplicitIntegrator(Integrator):
     ----------
     model : Model
     solver : str or LinearSolver
-        Linear solver name (see :data:`springsim.linsolve.LINEAR_SOLVERS`) or instance.
+        Linear solver name (see :data:`springsim.linsolve.LINEAR_SOLVERS`) or instance; default ``"auto"``
+        (``direct`` up to 4,000 DOFs, AMG-preconditioned Krylov above).
     jacobian : {"exact", "symmetric", "spd"} or None
         Jacobian mode; default ``spd`` for solvers that need SPD matrices at this size
         (:meth:`~springsim.linsolve.LinearSolver.needs_spd_for`), else ``exact``.
@@ -110,7 +111,7 @@ class ImplicitIntegrator(Integrator):
     #: Newton iteration limit when none is given
     default_newton_maxiter = 5
 
-    def __init__(self, model, *, solver="direct", jacobian: str | None = None, newton_tol: float = 1e-5,
+    def __init__(self, model, *, solver="auto", jacobian: str | None = None, newton_tol: float = 1e-5,
                  newton_maxiter: int | None = None, residual_rtol: float = 1e-3, on_nonconvergence: str = "warn",
                  solver_options: dict | None = None, line_search: bool = True, min_step: float = 1.0 / 64,
                  escalate_jacobian: bool = True, escalate_after: int | None = None, terms=None):

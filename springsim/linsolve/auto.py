@@ -47,8 +47,9 @@ class LinearSolverAuto(LinearSolver):
                  direct_max_dofs: int = DIRECT_MAX_DOFS, fallback: str = "direct"):
         super().__init__(rtol=rtol, atol=atol, maxiter=maxiter)
         self.direct_max_dofs = int(direct_max_dofs)
-        #: Name of the solver used for the last system (None before the first solve).
+        #: Name of the solver used for the last system, and why (None before the first solve).
         self.last_choice: str | None = None
+        self.last_reason: str | None = None
         self._solvers = {
             "direct": LinearSolverDirect(),
             "amg-cg": LinearSolverAMGCG(rtol=self.rtol, atol=self.atol, maxiter=maxiter, fallback=fallback),
@@ -60,12 +61,19 @@ class LinearSolverAuto(LinearSolver):
 
     def choose(self, A) -> str:
         """Name of the solver used for ``A``."""
-        if A.shape[0] <= self.direct_max_dofs:
-            return "direct"
-        return "amg-cg" if A.symmetric else "amg-gmres"
+        return self._choose(A)[0]
+
+    def _choose(self, A) -> tuple[str, str]:
+        n = A.shape[0]
+        if n <= self.direct_max_dofs:
+            return "direct", f"{n} DOFs <= {self.direct_max_dofs}"
+        if A.symmetric:
+            return "amg-cg", f"{n} DOFs > {self.direct_max_dofs}, symmetric matrix"
+        return "amg-gmres", f"{n} DOFs > {self.direct_max_dofs}, non-symmetric matrix"
 
     def _solve(self, A, b, x0):
-        choice = self.last_choice = self.choose(A)
+        choice, self.last_reason = self._choose(A)
+        self.last_choice = choice
         res = self._solvers[choice]._solve(A, b, x0)  # A is already wrapped by solve()
         res.method = f"auto:{res.method}"
         res.info = dict(res.info, auto_choice=choice)

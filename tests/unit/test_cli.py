@@ -42,7 +42,7 @@ def test_run_prints_summary(capsys, scene_file):
     code, out, err = _run(capsys, "run", scene_file)
     assert code == 0 and err == ""
     for key in ("scene:", "particles:", "2 (1 free, 1 fixed)", "springs:", "gravitational pairs:", "dofs:",
-                "implicit_euler (linear solver direct, jacobian exact)", "steps:", "5 x dt = 0.01 s",
+                "implicit_euler (linear solver auto -> direct: 3 DOFs <= 4000, jacobian exact)", "steps:", "5 x dt = 0.01 s",
                 "simulated time:", "wall time:", "(CPU ", "time per step:", "assembly per step:", "other per step:",
                 "Newton iterations:", "linear iterations:", "failed steps:", "solver fallbacks:",
                 "max linear residual:",
