@@ -42,6 +42,7 @@ from .driver import RunRecorder, Trajectory
 from .errors import SceneError, SimulationError, SpringsimError
 from .integrators import INTEGRATORS, Integrator, StepStats, make_integrator
 from .model import Model, State
+from .progress import as_progress
 
 __all__ = ["simulate_adaptive", "hermite_frame"]
 
@@ -74,7 +75,7 @@ def simulate_adaptive(model: Model, integrator: str | Integrator, t_end: float, 
                       t_frames=None, time_rtol: float = 1e-3, time_atol: float = 1e-4, h0: float | None = None,
                       h_min: float = 1e-7, h_max: float | None = None, error_on: str = "qv",
                       state: State | None = None, safety: float = 0.9, grow: float = 4.0, shrink: float = 0.2,
-                      max_steps: int = 1_000_000, progress: Callable[[float, float], None] | None = None,
+                      max_steps: int = 1_000_000, progress: Callable[[float, float], None] | bool | None = None,
                       **integrator_options) -> Trajectory:
     """Integrate to ``t_end`` with step sizes chosen from a local error estimate.
 
@@ -107,8 +108,9 @@ def simulate_adaptive(model: Model, integrator: str | Integrator, t_end: float, 
         Controller constants (see module docstring).
     max_steps : int
         Limit on attempted steps.
-    progress : callable(t, t_end), optional
-        Called after each accepted step.
+    progress : callable(t, t_end) or True, optional
+        Called after each accepted step; True logs a line every few seconds with the time left
+        (:class:`springsim.progress.ProgressLog`, logger ``springsim``).
     **integrator_options
         Passed to :func:`~springsim.integrators.make_integrator` when ``integrator`` is a name
         (``solver``, ``jacobian``, ``newton_tol``, ...).
@@ -156,6 +158,7 @@ def simulate_adaptive(model: Model, integrator: str | Integrator, t_end: float, 
         raise SceneError("h_min", f"need 0 < h_min <= h_max, got {h_min}, {h_max}")
     h = min(h_max, 1e-3) if h0 is None else float(h0)
     h = min(max(h, h_min), h_max)
+    progress = as_progress(progress)
 
     if isinstance(integrator, str):
         integrator = make_integrator(integrator, model, **integrator_options)

@@ -44,6 +44,7 @@ from .integrators import Integrator, StepStats
 from .model import Model, State
 from ._threads import single_blas_thread
 from .options import MAX_STEPS, describe_int
+from .progress import as_progress
 
 __all__ = ["Trajectory", "simulate", "SimulationInterrupted", "save_npz_atomic", "check_output_path",
            "RunRecorder", "steps_for_duration", "MAX_STEPS"]
@@ -421,7 +422,7 @@ def report(traj: Trajectory, integrator, stacklevel: int = 2) -> None:
 
 
 def simulate(model: Model, integrator: Integrator, dt: float, steps: int, *, state: State | None = None,
-             frame_every: int = 1, record: bool = True, progress: Callable[[int, int], None] | None = None,
+             frame_every: int = 1, record: bool = True, progress: Callable[[int, int], None] | bool | None = None,
              check_energy: bool = True) -> Trajectory:
     """Run ``steps`` steps of size ``dt`` [s] and return the :class:`Trajectory`.
 
@@ -440,8 +441,9 @@ def simulate(model: Model, integrator: Integrator, dt: float, steps: int, *, sta
         Record every k-th step (the initial and the final state are always recorded).
     record : bool
         If False, keep only the initial and final frames (large scenes).
-    progress : callable(step, steps), optional
-        Called after every step.
+    progress : callable(step, steps) or True, optional
+        Called after every step; True logs a line every few seconds with the time left
+        (:class:`springsim.progress.ProgressLog`, logger ``springsim``).
     check_energy : bool
         Stop when a finite state holds more energy than the forces can supply (module docstring).
 
@@ -459,6 +461,7 @@ def simulate(model: Model, integrator: Integrator, dt: float, steps: int, *, sta
     dt = _positive_time("dt", dt)
     steps = _count("steps", steps, 0)
     frame_every = _count("frame_every", frame_every, 1)
+    progress = as_progress(progress)
     run = RunRecorder(model, integrator, state, check_energy=check_energy)
     k = 0
     try:

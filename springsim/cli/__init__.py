@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from typing import Callable
 
 from ..errors import SceneError, SpringsimError
-from .run import _Exit
+from .run import _Exit, configure_logging
 
 __all__ = ["COMMANDS", "Command", "main", "build_parser"]
 
@@ -96,7 +96,8 @@ def main(argv: list[str] | None = None) -> int:
         return 130
     scene = getattr(args, "scene", None)
     try:
-        return int(args._command.run(args))
+        with configure_logging(getattr(args, "verbose", 0), getattr(args, "quiet", False)):
+            return int(args._command.run(args))
     except SceneError as e:
         msg = str(e)
         if scene and not msg.startswith(str(scene)):

@@ -1,16 +1,17 @@
 """``springsim run``: run a scene and print a summary; the run path ``plot`` and ``render`` reuse.
 
 The options of a run are the fields of :class:`springsim.options.SolverConfig` (one flag each,
-derived from its declarations) plus ``--out``, ``--frame-every`` and ``--quiet``.
+derived from its declarations) plus ``--out``, ``--frame-every``, ``-v/--verbose`` and ``-q/--quiet``. Progress and set-up phases are
+logged (:mod:`springsim.progress`) to stderr.
 """
 
 from __future__ import annotations
 
 import argparse
-import math
+import contextlib
+import logging
 import os
 import sys
-import time
 import warnings
 from pathlib import Path
 
@@ -18,7 +19,7 @@ from ..errors import SimulationError, SimulationInterrupted, SpringsimError, Spr
 from ..options import MAX_STEPS, SolverConfig
 from .argtypes import int_at_least
 
-__all__ = ["run_command", "add_run_options", "load_and_configure", "execute", "ProgressBar"]
+__all__ = ["run_command", "add_run_options", "load_and_configure", "execute", "configure_logging"]
 
 
 class _Exit(Exception):
@@ -29,44 +30,6 @@ class _Exit(Exception):
         self.status = status
 
 
-class ProgressBar:
-    """A text progress bar on a stream, drawn with carriage returns.
-
-    Appears only after ``delay`` seconds and redraws at most every ``interval``
-    seconds, so short runs print nothing. Used only when the stream is a terminal.
-    """
-
-    def __init__(self, stream, *, delay: float = 1.0, interval: float = 0.2, width: int = 30):
-        self.stream = stream
-        self.delay = delay
-        self.interval = interval
-        self.width = width
-        self.t0 = time.perf_counter()
-        self._last = -math.inf
-        self.drawn = False
-
-    def __call__(self, step: int, steps: int) -> None:
-        now = time.perf_counter()
-        if now - self.t0 < self.delay or (now - self._last < self.interval and step < steps):
-            return
-        self._last = now
-        frac = step / max(steps, 1)
-        fill = int(round(self.width * frac))
-        elapsed = now - self.t0
-        eta = elapsed * (1 - frac) / frac if frac > 0 else math.nan
-        self.stream.write(f"\r[{'#' * fill}{'.' * (self.width - fill)}] {step}/{steps} "
-                          f"{elapsed:6.1f} s elapsed, {eta:6.1f} s left ")
-        self.stream.flush()
-        self.drawn = True
-
-    def close(self) -> None:
-        """End the bar's line (if one was drawn)."""
-        if self.drawn:
-            self.stream.write("\n")
-            self.stream.flush()
-            self.drawn = False
-
-
 def add_run_options(p: argparse.ArgumentParser) -> None:
     """The flags of every command that runs a scene: one per :class:`SolverConfig` field that declares one."""
     from ..forces import JACOBIAN_MODES
@@ -75,6 +38,34 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
 
     SolverConfig.add_arguments(p, choices={"integrator": list(INTEGRATORS), "linear_solver": list(LINEAR_SOLVERS),
                                            "jacobian": list(JACOBIAN_MODES)})
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("-v", "--verbose", action="count", default=0,
+                   help="also log every set-up phase with its time (default: progress every few seconds and "
+                        "set-up phases that take over a second)")
+    g.add_argument("-q", "--quiet", action="store_true", help="warnings and errors only: no progress, no summary")
+
+
+@contextlib.contextmanager
+def configure_logging(verbose: int = 0, quiet: bool = False):
+    """Send the ``springsim`` logger to stderr as ``springsim: <message>`` lines while the block runs.
+
+    Level INFO (progress, slow set-up phases), DEBUG with ``verbose``, WARNING with ``quiet``.
+    The handler is removed afterwards, so the library's logging is left as it was.
+    """
+    from ..progress import logger
+
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("springsim: %(message)s"))
+    saved = logger.level, logger.propagate
+    logger.setLevel(logging.WARNING if quiet else logging.DEBUG if verbose else logging.INFO)
+    logger.propagate = False  # one line per message, whatever the application's root logger does
+    logger.addHandler(handler)
+    try:
+        yield
+    finally:
+        logger.removeHandler(handler)
+        logger.setLevel(saved[0])
+        logger.propagate = saved[1]
 
 
 def _add_arguments(p: argparse.ArgumentParser) -> None:
@@ -83,24 +74,27 @@ def _add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", metavar="FILE.npz", help="write frames t (F,), q (F,N,3), qd (F,N,3) to an .npz")
     p.add_argument("--frame-every", type=int_at_least(1, MAX_STEPS), default=1, metavar="K",
                    help="record every K-th step in --out (first and last always; default 1)")
-    p.add_argument("--quiet", action="store_true", help="no progress bar and no summary")
 
 
 def load_and_configure(args: argparse.Namespace):
     """``(scene, config)``: the scene of ``args.scene`` with the command-line overrides applied."""
+    from ..progress import phase
     from ..scene import load_scene
 
-    scene = load_scene(Path(args.scene))  # always a path on the command line, never YAML text
+    with phase(f"loading {args.scene}"):
+        scene = load_scene(Path(args.scene))  # always a path on the command line, never YAML text
     names = [f for f in SolverConfig._fields() if hasattr(args, f)]
     cfg = scene.config.with_overrides(**{name: getattr(args, name) for name in names})
     return scene, cfg
 
 
-def execute(scene, cfg, *, record: bool = True, frame_every: int = 1, progress=None):
+def execute(scene, cfg, *, record: bool = True, frame_every: int = 1, progress=True):
     """Run ``scene`` as configured by ``cfg``: ``(integrator, trajectory)``; steps that did not meet their criteria
-    and fallbacks are reported by the caller (from the trajectory), not as Python warnings."""
+    and fallbacks are reported by the caller (from the trajectory), not as Python warnings. ``progress`` as for
+    :func:`springsim.simulate` (default: log lines, :class:`springsim.progress.ProgressLog`)."""
     from ..adaptive import simulate_adaptive
     from ..driver import simulate
+    from ..progress import as_progress, logger, phase
 
     steps = cfg.run_steps()
     unused = cfg.unused()
@@ -110,15 +104,19 @@ def execute(scene, cfg, *, record: bool = True, frame_every: int = 1, progress=N
               file=sys.stderr)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SpringsimWarning)  # reported in the CLI's own lines
-        integrator = cfg.make_integrator(scene.model)
+        with phase(f"setting up {cfg.integrator}"):
+            integrator = cfg.make_integrator(scene.model)
+        progress = as_progress(progress)
+        logger.debug("running %s", f"{cfg.integrator} to t = {steps * cfg.dt:g} s (adaptive, frames every "
+                                   f"{cfg.dt * frame_every:g} s)" if cfg.adaptive else
+                     f"{steps} step(s) of {cfg.dt:g} s with {cfg.integrator}")
         if cfg.adaptive:  # frames every dt
             rtol = cfg.time_rtol if cfg.time_rtol is not None else cfg.time_atol
             atol = cfg.time_atol if cfg.time_atol is not None else cfg.time_rtol
             traj = simulate_adaptive(scene.model, integrator, steps * cfg.dt, time_rtol=rtol, time_atol=atol,
                                      frame_dt=cfg.dt * frame_every if record else None,
                                      h0=cfg.dt, h_max=cfg.max_step,  # the driver clips h0 to h_max
-                                     progress=None if progress is None else
-                                     (lambda t, t_end: progress(int(round(t / cfg.dt)), steps)))
+                                     progress=progress)
         else:
             traj = simulate(scene.model, integrator, cfg.dt, steps, frame_every=frame_every, record=record,
                             progress=progress)
@@ -217,13 +215,10 @@ def _run(args: argparse.Namespace) -> int:
     scene, cfg = load_and_configure(args)
     if args.out is not None:
         check_output_path(args.out)  # before the run: a run is never lost to an unwritable --out
-    progress = ProgressBar(sys.stderr) if not args.quiet and sys.stderr.isatty() else None
     record = args.out is not None
     try:
-        integrator, traj = execute(scene, cfg, record=record, frame_every=args.frame_every, progress=progress)
+        integrator, traj = execute(scene, cfg, record=record, frame_every=args.frame_every)
     except (SimulationError, SimulationInterrupted) as e:
-        if progress is not None:
-            progress.close()
         interrupted = isinstance(e, SimulationInterrupted)
         print(f"springsim: {'interrupted' if interrupted else 'error'}: {e}", file=sys.stderr)
         if args.out is not None and e.trajectory is not None and e.trajectory.frame_count:
@@ -231,8 +226,6 @@ def _run(args: argparse.Namespace) -> int:
             print(f"springsim: saved {e.trajectory.frame_count} finite frame(s) up to "
                   f"t={e.trajectory.t[-1]:g} s to {args.out}", file=sys.stderr)
         return 130 if interrupted else 1
-    if progress is not None:
-        progress.close()
     if args.out is not None:
         save_or_rescue(traj, args.out)
     warn_failed_steps(traj)

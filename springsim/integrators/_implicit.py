@@ -47,7 +47,10 @@ from ..assembly import SystemAssembler
 from ..errors import SceneError, SolverError
 from ..forces import JACOBIAN_MODES, eval_forces
 from ..linsolve import make_linear_solver
+from ..progress import logger, phase
 from ._base import PRECISION_LOSS_LIMIT, Integrator, StepStats
+
+_log = logger.getChild("integrators")
 
 __all__ = ["ImplicitIntegrator"]
 
@@ -141,7 +144,8 @@ class ImplicitIntegrator(Integrator):
         if escalate_after is not None:
             _check_count("escalate_after", escalate_after)
         self.escalate_after = None if escalate_after is None else int(escalate_after)
-        self.assembler = SystemAssembler(model, self.terms)
+        with phase(f"{self.name}: sparsity pattern of {3 * model.free_count} DOFs", _log, announce=False):
+            self.assembler = SystemAssembler(model, self.terms)
         self._mass = model.particle_mass[:, None]
         # floor of the residual scale: the residual of a velocity error of newton_tol in every DOF
         self._mass_norm = float(np.sqrt(3.0) * np.linalg.norm(model.particle_mass[self.free]))

@@ -36,7 +36,10 @@ import time
 
 import numpy as np
 
+from ..progress import logger, phase
 from .preconditioners import Preconditioner
+
+_log = logger.getChild("linsolve")
 
 __all__ = ["AMGPreconditioner", "BackwardBlockGaussSeidel", "rigid_body_modes", "translation_modes"]
 
@@ -186,7 +189,8 @@ class AMGPreconditioner(Preconditioner):
             self._skip = max(self._skip - 1, 0)
         t0 = time.perf_counter()
         self.ml = self._precond = None  # free the old hierarchy first: only one is alive at the peak
-        self._build(A, key)
+        with phase(f"AMG hierarchy of {A.shape[0]} DOFs (build {self.builds + 1})", _log, announce=False):
+            self._build(A, key)
         self.key = key
         self.version = A.version
         return self._precond, time.perf_counter() - t0, True

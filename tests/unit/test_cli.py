@@ -151,22 +151,6 @@ def test_interrupt_saves_frames_exit_130(capsys, scene_file, tmp_path, monkeypat
     assert code == 1 and "stopped at step 3" in err
 
 
-def test_progress_bar_draws_on_a_stream():
-    """The progress bar stays silent before its delay, then draws with carriage returns and ends its line."""
-    import io
-
-    from springsim.cli.run import ProgressBar
-
-    s = io.StringIO()
-    bar = ProgressBar(s, delay=1e9)
-    bar(1, 10)
-    assert s.getvalue() == ""
-    bar = ProgressBar(s, delay=0.0, interval=0.0)
-    bar(5, 10)
-    bar.close()
-    assert s.getvalue().startswith("\r[") and "5/10" in s.getvalue() and s.getvalue().endswith("\n")
-
-
 def test_command_registry(capsys):
     """A command added to COMMANDS (one line) gets its own subparser and exit status."""
     seen = {}
