@@ -176,6 +176,7 @@ def simulate_adaptive(model: Model, integrator: str | Integrator, t_end: float, 
     fixed = model.particle_fixed
 
     run = RunRecorder(model, integrator, state)
+    run.meta.update(t_end=t_end, time_rtol=float(time_rtol), time_atol=float(time_atol))
     info: dict[str, Any] = dict(accepted=0, rejected=0, newton_failures=0, failed_attempts=0, newton_iterations=0,
                                 linear_iterations=0, h_min=np.inf, h_max=0.0, h_mean=0.0)
     run.adaptive_stats = info

@@ -26,6 +26,7 @@ guarantees:
 
 from __future__ import annotations
 
+import json
 import os
 import stat
 import tempfile
@@ -46,8 +47,23 @@ from ._threads import single_blas_thread
 from .options import MAX_STEPS, describe_int
 from .progress import as_progress
 
-__all__ = ["Trajectory", "simulate", "SimulationInterrupted", "save_npz_atomic", "check_output_path",
+__all__ = ["Trajectory", "TRAJECTORY_FORMAT", "TRAJECTORY_FORMAT_VERSION", "run_metadata", "simulate", "SimulationInterrupted", "save_npz_atomic", "check_output_path",
            "RunRecorder", "steps_for_duration", "MAX_STEPS"]
+
+#: ``meta["format"]`` of a saved trajectory, and the layout version this springsim writes.
+TRAJECTORY_FORMAT = "springsim-trajectory"
+TRAJECTORY_FORMAT_VERSION = 1
+
+
+def _read_meta(a) -> dict:
+    """The JSON object in the 0-d ``meta`` array of a trajectory file."""
+    if a.dtype.kind != "U" or a.ndim != 0:
+        raise ValueError(f"meta must be a 0-d unicode array, got {a.dtype} {a.shape}")
+    meta = json.loads(str(a))
+    if not isinstance(meta, dict):
+        raise ValueError("meta must hold a JSON object")
+    return meta
+
 
 @dataclass
 class Trajectory:
@@ -68,6 +84,13 @@ class Trajectory:
     adaptive_stats : dict or None
         Step-size controller statistics of an adaptive run (see
         :func:`springsim.adaptive.simulate_adaptive`).
+    meta : dict
+        How the frames were made, JSON-serialisable (saved with them): ``springsim_version``,
+        ``model_fingerprint`` (:meth:`springsim.Model.fingerprint`), ``scene`` and ``source``
+        (from the model's metadata), ``integrator``, ``linear_solver``, ``jacobian``, and ``dt``,
+        ``steps``, ``frame_every`` for fixed steps or ``t_end``, ``time_rtol``, ``time_atol`` for
+        adaptive runs; the command line adds ``scene_sha256`` (of the scene file). Empty for
+        trajectories made by hand.
     """
 
     t: np.ndarray
@@ -77,14 +100,22 @@ class Trajectory:
     wall_s: float = 0.0
     cpu_s: float = 0.0
     adaptive_stats: dict | None = None
+    meta: dict = field(default_factory=dict)
 
     @property
     def frame_count(self) -> int:
         return int(self.t.shape[0])
 
     def save(self, path) -> None:
-        """Write ``t``, ``q``, ``qd`` to an ``.npz`` atomically (see :func:`save_npz_atomic`)."""
-        save_npz_atomic(path, t=self.t, q=self.q, qd=self.qd)
+        """Write the frames to an ``.npz`` atomically (see :func:`save_npz_atomic`).
+
+        Layout (NumPy ``.npz``, readable with ``np.load(path)`` and no pickling): ``t`` (F,)
+        float64 [s], ``q`` and ``qd`` (F, N, 3) float64 [m], [m/s], frame 0 the initial state;
+        ``meta`` a 0-d unicode array holding :attr:`meta` as a JSON object, with
+        ``"format": "springsim-trajectory"`` and ``"format_version": 1``.
+        """
+        meta = {"format": TRAJECTORY_FORMAT, "format_version": TRAJECTORY_FORMAT_VERSION, **self.meta}
+        save_npz_atomic(path, t=self.t, q=self.q, qd=self.qd, meta=np.array(json.dumps(meta, sort_keys=True)))
 
     @classmethod
     def load(cls, path) -> "Trajectory":
@@ -105,14 +136,20 @@ class Trajectory:
             with np.load(path, allow_pickle=False) as d:
                 t, q = np.asarray(d["t"], dtype=np.float64), np.asarray(d["q"], dtype=np.float64)
                 qd = np.asarray(d["qd"], dtype=np.float64) if "qd" in d.files else np.zeros_like(q)
-        except (KeyError, ValueError, TypeError, OSError, EOFError, zipfile.BadZipFile, zlib.error) as e:
+                meta = _read_meta(d["meta"]) if "meta" in d.files else {}
+        except (KeyError, ValueError, TypeError, OSError, EOFError, zipfile.BadZipFile, zlib.error) as e:  # JSON too
             msg = " ".join(str(e).split()) or type(e).__name__
             raise SpringsimError(f"{path}: not a readable springsim trajectory (.npz with t, q, qd): {msg}") \
                 from None
+        if meta.get("format", TRAJECTORY_FORMAT) != TRAJECTORY_FORMAT or \
+                meta.get("format_version", 1) > TRAJECTORY_FORMAT_VERSION:
+            raise SpringsimError(f"{path}: trajectory format {meta.get('format')!r} version "
+                                 f"{meta.get('format_version')!r}; this springsim reads "
+                                 f"{TRAJECTORY_FORMAT!r} up to version {TRAJECTORY_FORMAT_VERSION}")
         if q.ndim != 3 or q.shape[2] != 3 or t.ndim != 1 or t.shape[0] != q.shape[0] or qd.shape != q.shape:
             raise SpringsimError(f"{path}: needs t (F,), q and qd (F, N, 3); got t {t.shape}, q {q.shape}, "
                                  f"qd {qd.shape}")
-        return cls(t, q, qd)
+        return cls(t, q, qd, meta=meta)
 
     def summary(self) -> dict:
         """Aggregate statistics over all steps (per-step means where it says so)."""
@@ -296,6 +333,18 @@ def _check_integrator(model, integrator) -> None:
 
 
 # -- the shared run machinery --------------------------------------------------------------------
+def run_metadata(model, integrator) -> dict:
+    """The part of :attr:`Trajectory.meta` that the model and the integrator determine."""
+    from . import __version__
+
+    solver = getattr(integrator, "solver", None)
+    name, source = (model.metadata.get(k) for k in ("name", "source"))
+    return {"springsim_version": __version__, "model_fingerprint": model.fingerprint(),
+            "scene": None if name is None else str(name), "source": None if source is None else str(source),
+            "integrator": integrator.name, "linear_solver": getattr(solver, "name", None),
+            "jacobian": getattr(integrator, "jacobian", None)}
+
+
 class RunRecorder:
     """Frames, statistics, checks and reports of one run (used by both drivers).
 
@@ -327,6 +376,7 @@ class RunRecorder:
         self._wall0 = time.perf_counter()
         self._cpu0 = time.process_time()
         self.adaptive_stats: dict | None = None
+        self.meta = run_metadata(model, integrator)
 
     def add_frame(self, t: float, q: np.ndarray, qd: np.ndarray) -> None:
         """Record a frame (copied)."""
@@ -341,7 +391,7 @@ class RunRecorder:
             self.recorded = True
         return Trajectory(np.array(self.t), np.array(self.q), np.array(self.qd), self.stats,
                           time.perf_counter() - self._wall0, time.process_time() - self._cpu0,
-                          None if self.adaptive_stats is None else dict(self.adaptive_stats))
+                          None if self.adaptive_stats is None else dict(self.adaptive_stats), dict(self.meta))
 
     def kept(self) -> str:
         n = len(self.t) + (not self.recorded)
@@ -463,6 +513,7 @@ def simulate(model: Model, integrator: Integrator, dt: float, steps: int, *, sta
     frame_every = _count("frame_every", frame_every, 1)
     progress = as_progress(progress)
     run = RunRecorder(model, integrator, state, check_energy=check_energy)
+    run.meta.update(dt=dt, steps=steps, frame_every=frame_every)
     k = 0
     try:
         with single_blas_thread():

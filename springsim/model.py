@@ -6,6 +6,7 @@ velocities of shape (N, 3) [m], [m/s]; ``M`` the diagonal mass matrix.
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass, field, fields
 from typing import NamedTuple
 
@@ -139,6 +140,29 @@ class Model:
     def state(self) -> "State":
         """A fresh :class:`State` initialised from the model."""
         return State(self.particle_q.copy(), self.particle_qd.copy())
+
+    def fingerprint(self) -> str:
+        """SHA-256 (hex) of everything that determines the motion: every array, ``gravity``,
+        ``up_axis``, ``pair_epsilon`` and the cloth grids, not ``metadata``.
+
+        Two models with equal fingerprints simulate identically; the value is the same on every
+        machine (arrays are hashed as little-endian bytes with their dtype and shape). Saved
+        trajectories record it (:meth:`springsim.driver.Trajectory.save`).
+        """
+        h = hashlib.sha256()
+        for f in fields(self):
+            if f.name == "metadata":
+                continue
+            v = getattr(self, f.name)
+            h.update(f.name.encode())
+            if isinstance(v, np.ndarray):
+                a = np.ascontiguousarray(v, dtype=v.dtype.newbyteorder("<"))
+                h.update(f"{a.dtype.str}{a.shape}".encode())
+                h.update(a.tobytes())
+            else:
+                v = tuple(tuple(int(x) for x in g) for g in v) if f.name == "cloth_grids" else float(v)
+                h.update(repr(v).encode())
+        return h.hexdigest()
 
     def __repr__(self) -> str:
         return (

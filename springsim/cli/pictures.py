@@ -17,7 +17,7 @@ from pathlib import Path
 
 from ..errors import SceneError, SimulationError, SimulationInterrupted, SpringsimError
 from .argtypes import int_at_least
-from .run import add_run_options, execute, load_and_configure, warn_failed_steps
+from .run import add_run_options, execute, load_and_configure, load_trajectory_for, warn_failed_steps
 
 __all__ = ["plot_command", "render_command"]
 
@@ -74,7 +74,6 @@ class _RenderCommand:
         p.add_argument("--fps", type=int_at_least(1, 1000), default=20, help="GIF frames per second (default 20)")
 
     def run(self, args) -> int:
-        from ..driver import Trajectory
         from ..scene import load_scene
         from ..viz import render_frame, render_gif, require_matplotlib
 
@@ -84,10 +83,7 @@ class _RenderCommand:
             if not args.scene_of_npz:
                 raise SpringsimError("render: a trajectory .npz needs --scene SCENE.yaml for its springs")
             scene = load_scene(Path(args.scene_of_npz))
-            traj = Trajectory.load(src)
-            if traj.q.shape[1] != scene.model.particle_count:
-                raise SpringsimError(f"render: {src} has {traj.q.shape[1]} particles, {args.scene_of_npz} has "
-                                     f"{scene.model.particle_count}")
+            traj = load_trajectory_for(src, scene, args.scene_of_npz)
         else:
             scene, traj = _run_scene(args)
         out = Path(args.out)

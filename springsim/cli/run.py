@@ -19,7 +19,8 @@ from ..errors import SimulationError, SimulationInterrupted, SpringsimError, Spr
 from ..options import MAX_STEPS, SolverConfig
 from .argtypes import int_at_least
 
-__all__ = ["run_command", "add_run_options", "load_and_configure", "execute", "configure_logging"]
+__all__ = ["run_command", "add_run_options", "load_and_configure", "execute", "configure_logging",
+           "load_trajectory_for"]
 
 
 class _Exit(Exception):
@@ -209,6 +210,35 @@ def save_or_rescue(traj, out: str) -> None:
     raise _Exit(1)
 
 
+def load_trajectory_for(path, scene, scene_path):
+    """The trajectory ``.npz`` at ``path``, checked against the scene it is drawn or exported with.
+
+    A different particle count is an error; a different model fingerprint (the file records the
+    model it was computed from) is a one-line warning on stderr.
+    """
+    from ..driver import Trajectory
+
+    traj = Trajectory.load(path)
+    if traj.q.shape[1] != scene.model.particle_count:
+        raise SpringsimError(f"{path} has {traj.q.shape[1]} particles, {scene_path} has "
+                             f"{scene.model.particle_count}")
+    recorded = traj.meta.get("model_fingerprint")
+    if recorded is not None and recorded != scene.model.fingerprint():
+        print(f"springsim: warning: {path} was computed from another model than {scene_path} "
+              f"(the model fingerprints differ)", file=sys.stderr)
+    return traj
+
+
+def _provenance(traj, scene, cfg, scene_path) -> None:
+    """Add the scene file's SHA-256 and the run options to ``traj.meta`` (saved with ``--out``)."""
+    import dataclasses
+    import hashlib
+
+    with open(scene_path, "rb") as fh:
+        traj.meta["scene_sha256"] = hashlib.file_digest(fh, "sha256").hexdigest()
+    traj.meta["run_options"] = {k: v for k, v in dataclasses.asdict(cfg).items() if v is not None}
+
+
 def _run(args: argparse.Namespace) -> int:
     from ..driver import check_output_path
 
@@ -222,11 +252,13 @@ def _run(args: argparse.Namespace) -> int:
         interrupted = isinstance(e, SimulationInterrupted)
         print(f"springsim: {'interrupted' if interrupted else 'error'}: {e}", file=sys.stderr)
         if args.out is not None and e.trajectory is not None and e.trajectory.frame_count:
+            _provenance(e.trajectory, scene, cfg, args.scene)
             save_or_rescue(e.trajectory, args.out)
             print(f"springsim: saved {e.trajectory.frame_count} finite frame(s) up to "
                   f"t={e.trajectory.t[-1]:g} s to {args.out}", file=sys.stderr)
         return 130 if interrupted else 1
     if args.out is not None:
+        _provenance(traj, scene, cfg, args.scene)
         save_or_rescue(traj, args.out)
     warn_failed_steps(traj)
     if not args.quiet:

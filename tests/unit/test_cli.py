@@ -58,6 +58,14 @@ def test_out_npz_and_overrides(capsys, scene_file, tmp_path):
     assert code == 0
     with np.load(out_file) as z:
         t, q, qd = z["t"], z["q"], z["qd"]
+    import hashlib
+
+    from springsim.driver import Trajectory
+
+    meta = Trajectory.load(out_file).meta
+    assert meta["scene_sha256"] == hashlib.sha256(scene_file.read_bytes()).hexdigest()
+    assert meta["integrator"] == "symplectic_euler" and meta["dt"] == 0.02 and meta["frame_every"] == 3
+    assert meta["run_options"]["integrator"] == "symplectic_euler"
     np.testing.assert_allclose(t, [0.0, 0.06, 0.12, 0.14])
     assert q.shape == (4, 2, 3) and qd.shape == (4, 2, 3)
     np.testing.assert_array_equal(q[0], [[0, 0, 1], [0, 0, 0]])

@@ -200,6 +200,54 @@ def test_save_roundtrip(tmp_path):
     assert sorted(os.listdir(tmp_path)) == ["run.npz"]
 
 
+def test_saved_metadata_traces_the_run(tmp_path):
+    """The .npz carries how it was made (JSON in a 0-d unicode array, no pickling) and load reads it back."""
+    import json
+
+    import springsim
+
+    m = _chain()
+    tr = simulate(m, make_integrator("implicit_euler", m, solver="direct"), 0.01, 4, frame_every=2)
+    out = tmp_path / "run.npz"
+    tr.save(out)
+    with np.load(out, allow_pickle=False) as z:
+        meta = json.loads(str(z["meta"]))
+    assert meta == dict(tr.meta, format="springsim-trajectory", format_version=1)
+    assert meta["springsim_version"] == springsim.__version__ and meta["model_fingerprint"] == m.fingerprint()
+    assert (meta["integrator"], meta["linear_solver"], meta["jacobian"]) == ("implicit_euler", "direct", "exact")
+    assert (meta["dt"], meta["steps"], meta["frame_every"]) == (0.01, 4, 2)
+    assert Trajectory.load(out).meta == meta
+    ad = springsim.simulate_adaptive(m, "tr_bdf2", 0.05, time_rtol=1e-4, time_atol=1e-5)
+    assert (ad.meta["integrator"], ad.meta["t_end"], ad.meta["time_rtol"]) == ("tr_bdf2", 0.05, 1e-4)
+
+
+def test_load_without_metadata_and_of_a_foreign_format(tmp_path):
+    """A bare t/q/qd .npz loads with empty meta; a file of another format or a newer layout is refused by name."""
+    import json
+
+    np.savez(tmp_path / "bare.npz", t=np.zeros(1), q=np.zeros((1, 2, 3)), qd=np.zeros((1, 2, 3)))
+    assert Trajectory.load(tmp_path / "bare.npz").meta == {}
+    for name, meta in (("other.npz", {"format": "other"}), ("newer.npz", {"format_version": 99}),
+                       ("list.npz", [1, 2])):
+        np.savez(tmp_path / name, t=np.zeros(1), q=np.zeros((1, 2, 3)), qd=np.zeros((1, 2, 3)),
+                 meta=np.array(json.dumps(meta)))
+        with pytest.raises(SpringsimError, match=name):
+            Trajectory.load(tmp_path / name)
+
+
+def test_model_fingerprint_is_sensitive_and_ignores_metadata():
+    """Equal models hash equally whatever their metadata; any change of a parameter changes the hash."""
+    a, b = _chain(), _chain()
+    assert a.fingerprint() == b.fingerprint() and len(a.fingerprint()) == 64
+    object.__setattr__(b, "metadata", {"name": "renamed"})
+    assert a.fingerprint() == b.fingerprint()
+    assert _chain(seed=6).fingerprint() != a.fingerprint()
+    c = ModelBuilder(gravity=-9.8)
+    c.add_particles(a.particle_q, a.particle_qd, 0.1, fixed=np.arange(4) == 0)
+    c.add_springs(a.spring_indices, 100.0, 0.1)
+    assert c.finalize().fingerprint() != a.fingerprint()
+
+
 @pytest.mark.parametrize("exc", [OSError("disk full"), KeyboardInterrupt()])
 def test_atomic_write_failure_leaves_no_partial_file(tmp_path, monkeypatch, exc):
     """A failure half-way through writing leaves no target file and no temporary file."""

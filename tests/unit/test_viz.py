@@ -114,3 +114,18 @@ def test_cli_registers_plot_render_export(tmp_path, capsys):
     assert main(["render", spring, "--steps", "4", "--every", "2", "--out", str(tmp_path / "x.png")]) == 2
     assert main(["plot", str(SCENES / "stiff_chain.yaml"), "--out", str(tmp_path / "c.png")]) == 2
     assert "no plot: block" in capsys.readouterr().err
+
+
+def test_render_checks_the_trajectory_against_its_scene(tmp_path, capsys):
+    """render of an .npz names a particle-count mismatch (exit 2) and warns when the file was made from another model."""
+    from springsim.cli import main
+
+    spring, damped = str(SCENES / "spring.yaml"), str(SCENES / "damped_spring.yaml")
+    npz = str(tmp_path / "s.npz")
+    assert main(["run", spring, "--steps", "3", "--out", npz, "--quiet"]) == 0
+    assert main(["render", npz, "--scene", spring, "--out", str(tmp_path / "a.png")]) == 0
+    assert "warning" not in capsys.readouterr().err
+    assert main(["render", npz, "--scene", damped, "--out", str(tmp_path / "b.png")]) == 0
+    assert "computed from another model" in capsys.readouterr().err
+    assert main(["render", npz, "--scene", str(SCENES / "three_body.yaml"), "--out", str(tmp_path / "c.png")]) == 2
+    assert "has 2 particles" in capsys.readouterr().err
