@@ -319,20 +319,21 @@ def orders(rows: list[dict]) -> list[dict]:
     return out
 
 
-def pareto_plot(rows: list[dict], case: str, out_png, *, dpi: int = 80) -> bool:
+def pareto_plot(rows: list[dict], case: str, out_png, *, dpi: int = 100) -> bool:
     """Log-log plot of wall time per simulated second against RMS error, one curve per method.
 
     Solid lines with dots: the dt ladder per integrator; dashed: implicit Euler per Newton
     tolerance; crosses: the solver/rtol sweep at h = 1/60 s; thick dash-dotted lines with
-    squares (same colour as the integrator's dt ladder, labelled with ``time_rtol``): the adaptive
-    integrators over their time-tolerance ladder.
+    squares (same colour as the integrator's dt ladder): the adaptive integrators over their
+    time-tolerance ladder, whose range the legend gives (no labels on the points, so nothing
+    overlaps the curves).
     """
     from springsim.integrators import INTEGRATORS
 
     plt = pyplot()
     if plt is None:
         return False
-    fig, ax = plt.subplots(figsize=(8.4, 4.6))
+    fig, ax = plt.subplots(figsize=(10.0, 5.6))
     base = plt.get_cmap("tab10").colors  # one per integrator: its dt ladder and its adaptive curve
     others = plt.get_cmap("tab20b").colors  # Newton and solver sweeps
     names = list(INTEGRATORS)
@@ -345,7 +346,11 @@ def pareto_plot(rows: list[dict], case: str, out_png, *, dpi: int = 80) -> bool:
             key = ((lambda r: -float(r["time_rtol"])) if sweep == "adaptive"
                    else (lambda r: (-r["dt"], str(r["rtol"]))))
             rr = sorted((r for r in rr_s if r["method"] == m), key=key)
-            label = {"solver": f"{m} (rtol ladder, h=1/60)", "adaptive": f"{m} (time_rtol ladder)"}.get(sweep, m)
+            if sweep == "adaptive":
+                lo, hi = float(rr[-1]["time_rtol"]), float(rr[0]["time_rtol"])
+                label = f"{m} (time_rtol {hi:.0e} to {lo:.0e})"
+            else:
+                label = {"solver": f"{m} (rtol ladder, h=1/60)"}.get(sweep, m)
             if sweep in ("dt", "adaptive"):
                 integ = rr[0]["integrator"]
                 color = base[(names.index(integ) if integ in names else len(names)) % 10]
@@ -354,15 +359,11 @@ def pareto_plot(rows: list[dict], case: str, out_png, *, dpi: int = 80) -> bool:
                 k += 1
             ax.loglog([r["err_rms"] for r in rr], [r["wall_per_sim_s"] for r in rr], color=color,
                       label=label, **styles[sweep])
-            if sweep == "adaptive":
-                for r in rr:
-                    ax.annotate(f"{float(r['time_rtol']):.0e}", (r["err_rms"], r["wall_per_sim_s"]), fontsize=6,
-                                xytext=(4, -8), textcoords="offset points", color=color)
     ax.set_xlabel("final position error, RMS / scene size")
     ax.set_ylabel("wall time per simulated second [s]")
     ax.set_title(f"speed vs error: {case} (lower left is better)")
     ax.grid(True, which="major", alpha=0.3)
-    ax.legend(fontsize=6.5, loc="center left", bbox_to_anchor=(1.01, 0.5), frameon=False)
+    ax.legend(fontsize=7.5, loc="center left", bbox_to_anchor=(1.01, 0.5), frameon=False)
     save_figure(fig, out_png, dpi)
     return True
 

@@ -16,7 +16,8 @@ import numpy as np
 
 from .errors import SpringsimError
 
-__all__ = ["plot_dof", "render_frame", "render_gif", "require_matplotlib", "springs_outside_grids", "DOF_NAMES"]
+__all__ = ["plot_dof", "render_frame", "render_gif", "require_matplotlib", "run_title", "springs_outside_grids",
+           "DOF_NAMES"]
 
 #: Names accepted for a coordinate, besides 0, 1, 2.
 DOF_NAMES = {"x": 0, "y": 1, "z": 2}
@@ -47,7 +48,7 @@ def _dof_index(dof) -> int:
 
 
 def plot_dof(traj, particle_id: int, dof, y_range=None, out_png=None, *, title: str | None = None,
-             dpi: int = 90):
+             dpi: int = 100):
     """Plot one coordinate of one particle over time (the scene's ``plot:`` block).
 
     Parameters
@@ -89,6 +90,20 @@ def plot_dof(traj, particle_id: int, dof, y_range=None, out_png=None, *, title: 
     Path(out_png).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out_png, dpi=dpi)
     return Path(out_png)
+
+
+def run_title(traj, scene: str | None = None) -> str:
+    """``"<scene>: <integrator>, h = <dt> s"`` from a trajectory's :attr:`~springsim.driver.Trajectory.meta`
+    (adaptive runs: ``"adaptive, rtol = ..."``); the parts the metadata lacks are left out."""
+    m = traj.meta
+    scene = scene if scene is not None else m.get("scene")
+    parts = [m["integrator"]] if m.get("integrator") else []
+    if m.get("dt") is not None:
+        parts.append(f"h = {m['dt']:.4g} s")
+    elif m.get("time_rtol") is not None:
+        parts.append(f"adaptive, rtol = {m['time_rtol']:g}")
+    body = ", ".join(parts)
+    return f"{scene}: {body}" if scene and body else (scene or body)
 
 
 def springs_outside_grids(model) -> np.ndarray:
@@ -157,8 +172,8 @@ def _axes(Figure, lo, hi, size):
 
 def render_frame(model, q: np.ndarray, out_png, *, title: str | None = None, bounds=None,
                  show_springs: bool = True, show_particles: bool = True, surface: bool = True,
-                 elev: float = 20.0, azim: float = -60.0, size=(5.0, 5.0), dpi: int = 80):
-    """Render one configuration of ``model`` to a PNG.
+                 elev: float = 20.0, azim: float = -60.0, size=(6.0, 6.0), dpi: int = 100):
+    """Render one configuration of ``model`` to a PNG (600 px square by default).
 
     Parameters
     ----------
@@ -198,8 +213,8 @@ def render_frame(model, q: np.ndarray, out_png, *, title: str | None = None, bou
 
 def render_gif(model, traj, out_gif, *, every: int = 1, fps: int = 20, show_springs: bool = True,
                show_particles: bool = True, surface: bool = True, elev: float = 20.0, azim: float = -60.0,
-               size=(4.0, 4.0), dpi: int = 60):
-    """Animated GIF of every ``every``-th frame of ``traj`` (matplotlib's PillowWriter).
+               size=(6.0, 6.0), dpi: int = 80, title: str | None = None):
+    """Animated GIF of every ``every``-th frame of ``traj`` (matplotlib's PillowWriter; 480 px square by default).
 
     Parameters
     ----------
@@ -211,6 +226,8 @@ def render_gif(model, traj, out_gif, *, every: int = 1, fps: int = 20, show_spri
         Frame stride (>= 1).
     fps : int
         Frames per second of the animation.
+    title : str, optional
+        Title of every frame, followed by the frame's time (default :func:`run_title` of ``traj``).
 
     Returns
     -------
@@ -218,6 +235,8 @@ def render_gif(model, traj, out_gif, *, every: int = 1, fps: int = 20, show_spri
     """
     Figure = require_matplotlib()
     from matplotlib.animation import PillowWriter
+
+    title = run_title(traj) if title is None else title
 
     if int(every) != every or every < 1:
         raise SpringsimError(f"render.every: must be an integer >= 1, got {every!r}")
@@ -234,6 +253,6 @@ def render_gif(model, traj, out_gif, *, every: int = 1, fps: int = 20, show_spri
                 coll.remove()
             ax.view_init(elev=elev, azim=azim)
             _draw(ax, model, traj.q[k], show_springs=show_springs, show_particles=show_particles, surface=surface)
-            ax.set_title(f"t = {traj.t[k]:.3f} s")
+            ax.set_title(f"{title}\nt = {traj.t[k]:.3f} s" if title else f"t = {traj.t[k]:.3f} s")
             writer.grab_frame()
     return Path(out_gif)

@@ -46,16 +46,15 @@ class _PlotCommand:
         p.add_argument("--out", help="output PNG (default <scene>_plot.png)")
 
     def run(self, args) -> int:
-        from ..viz import plot_dof, require_matplotlib
+        from ..viz import plot_dof, require_matplotlib, run_title
 
         require_matplotlib()
         scene, traj = _run_scene(args)
         if scene.plot is None:
             raise SceneError("plot", "the scene has no plot: block (particle_id, dof, y_range)")
         out = Path(args.out) if args.out else Path(f"{Path(args.scene).stem}_plot.png")
-        integ = args.integrator or scene.config.integrator
         plot_dof(traj, scene.plot.particle_id, scene.plot.dof, scene.plot.y_range, out,
-                 title=f"{scene.name}: {integ}, h = {traj.stats[0].dt if traj.stats else 0:g} s")
+                 title=run_title(traj, scene.name))
         print(f"wrote {out}")
         return 0
 
@@ -75,7 +74,7 @@ class _RenderCommand:
 
     def run(self, args) -> int:
         from ..scene import load_scene
-        from ..viz import render_frame, render_gif, require_matplotlib
+        from ..viz import render_frame, render_gif, require_matplotlib, run_title
 
         require_matplotlib()
         src = Path(args.scene)
@@ -90,13 +89,13 @@ class _RenderCommand:
         if args.every is not None:
             if out.suffix.lower() != ".gif":
                 raise SpringsimError("render: --every writes an animated GIF; give --out FILE.gif")
-            render_gif(scene.model, traj, out, every=args.every, fps=args.fps)
+            render_gif(scene.model, traj, out, every=args.every, fps=args.fps, title=run_title(traj, scene.name))
         else:
             k = traj.frame_count - 1 if args.frame is None else args.frame
             if not -traj.frame_count <= k < traj.frame_count:
                 raise SpringsimError(f"render: --frame must be in [0, {traj.frame_count}), got {k}")
             k %= traj.frame_count
-            render_frame(scene.model, traj.q[k], out, title=f"{scene.name}, t = {traj.t[k]:.3f} s")
+            render_frame(scene.model, traj.q[k], out, title=f"{run_title(traj, scene.name)}\nt = {traj.t[k]:.3f} s")
         print(f"wrote {out}")
         return 0
 

@@ -70,6 +70,19 @@ def test_render_gif(cloth_run, tmp_path):
     assert out.read_bytes()[:6] in (b"GIF89a", b"GIF87a")
     with Image.open(out) as im:
         assert im.n_frames == 3  # frames 0, 3, 6
+        assert min(im.size) >= 480  # large enough to read the titles
+
+
+def test_run_title_names_integrator_and_step(cloth_run):
+    """Titles come from the trajectory's metadata: integrator and h, or the adaptive tolerance."""
+    from springsim.viz import run_title
+
+    m, tr = cloth_run
+    assert run_title(tr) == "benchmark_cloth_5: implicit_euler, h = 0.01667 s"
+    assert run_title(tr, "mine") == "mine: implicit_euler, h = 0.01667 s"
+    ad = Trajectory(tr.t, tr.q, tr.qd, meta={"integrator": "tr_bdf2", "time_rtol": 1e-3})
+    assert run_title(ad) == "tr_bdf2, adaptive, rtol = 0.001"
+    assert run_title(Trajectory(tr.t, tr.q, tr.qd)) == ""
 
 
 def test_missing_matplotlib_is_a_clear_error(monkeypatch):
