@@ -14,9 +14,17 @@ import numpy as np
 
 from .errors import SceneError, SceneTypeError
 from .model import AXES, ClothGrid, Model
-from .topology import PIN_MODES, PLANES, cloth_grid_pairs, cloth_pin_mask
+from .topology import PLANES, cloth_grid_pairs, cloth_pin_mask, index_mask
 
-__all__ = ["ModelBuilder", "default_softening", "SOFTENING_TIME", "SOFTENING_PRECISION"]
+__all__ = ["COEFFICIENT_ALIASES", "SOFTENING_PRECISION", "SOFTENING_TIME", "ModelBuilder", "default_softening"]
+
+#: Alias -> canonical name of the spring coefficients. The assignment's ``stiffness`` and ``damping`` are
+#: canonical (``Model.spring_stiffness``, the YAML ``springs:`` keys); ``ke``/``kd`` and their suffixed forms
+#: are accepted wherever the canonical name is (builder keywords, YAML ``springs:``, ``cloth:`` and
+#: ``benchmark_cloth:``). Giving both spellings of one coefficient is a SceneError.
+COEFFICIENT_ALIASES = {"ke": "stiffness", "kd": "damping", "ke_y": "stiffness_y", "kd_y": "damping_y",
+                       "ke_shear": "stiffness_shear", "kd_shear": "damping_shear", "ke_bend": "stiffness_bend",
+                       "kd_bend": "damping_bend"}
 
 #: Largest time step [s] for which :func:`default_softening` keeps a pair's masses in the implicit matrix
 #: to :data:`SOFTENING_PRECISION`.
@@ -41,6 +49,27 @@ def default_softening(G, m_i, m_j) -> np.ndarray:
     u = np.finfo(np.float64).eps
     scale = u * SOFTENING_TIME**2 / SOFTENING_PRECISION
     return np.cbrt(scale * np.asarray(G, dtype=np.float64) * np.maximum(m_i, m_j))
+
+
+def unalias(path: str, given: dict) -> dict:
+    """Merge the aliases of :data:`COEFFICIENT_ALIASES` in ``given`` (name -> value, None: not given).
+
+    Returns canonical name -> ``(value, spelling)``, the spelling being the key the value came under
+    (for error paths); canonical names of ``given`` without a given value map to ``(None, name)``.
+    Raises a SceneError at ``path`` when a coefficient is given under both spellings.
+    """
+    out = {}
+    for name, value in given.items():
+        canon = COEFFICIENT_ALIASES.get(name, name)
+        if value is None:
+            out.setdefault(canon, (None, name))
+            continue
+        prev = out.get(canon)
+        if prev is not None and prev[0] is not None:
+            alias, canonical = (name, canon) if name != canon else (prev[1], canon)
+            raise SceneError(path, f"give {canonical} or its alias {alias}, not both")
+        out[canon] = (value, name)
+    return out
 
 
 def _numeric(name: str, value, dtype=np.float64) -> np.ndarray:
@@ -139,7 +168,7 @@ class ModelBuilder:
     >>> b = ModelBuilder()
     >>> i = b.add_particle((0, 0, 1), mass=0.1, fixed=True)
     >>> j = b.add_particle((0, 0, 0), mass=0.1)
-    >>> b.add_spring(i, j, ke=100.0, kd=0.5)
+    >>> b.add_spring(i, j, stiffness=100.0, damping=0.5)
     0
     >>> b.finalize()
     Model(particles=2, fixed=1, springs=1, gravitational=0)
@@ -214,33 +243,42 @@ class ModelBuilder:
         return range(start, self._n_particles)
 
     # -- springs ------------------------------------------------------------------
-    def add_spring(self, i: int, j: int, ke: float, kd: float = 0.0, rest_length: float | None = None) -> int:
+    def add_spring(self, i: int, j: int, stiffness: float | None = None, damping: float | None = None,
+                   rest_length: float | None = None, *, ke: float | None = None, kd: float | None = None) -> int:
         """Add a damped spring between particles ``i`` and ``j``; return its index.
 
         Parameters
         ----------
         i, j
             Particle indices (``i != j``).
-        ke
-            Stiffness [N/m], >= 0.
-        kd
-            Damping [N s/m] along the spring direction (PA2 eq. 8), >= 0.
+        stiffness
+            Stiffness [N/m], >= 0; required (``ke`` is its alias).
+        damping
+            Damping [N s/m] along the spring direction (PA2 eq. 8), >= 0; default 0 (``kd`` is its alias).
         rest_length
             Rest length l0 [m]; ``None`` takes the distance at :meth:`finalize`.
+        ke, kd
+            Aliases of ``stiffness`` and ``damping`` (not both spellings of one).
         """
-        return self.add_springs([[i, j]], ke, kd, np.nan if rest_length is None else rest_length).start
+        return self.add_springs([[i, j]], stiffness, damping, np.nan if rest_length is None else rest_length,
+                                ke=ke, kd=kd).start
 
-    def add_springs(self, indices, ke, kd=0.0, rest_length=None) -> range:
-        """Add springs in bulk: ``indices`` (n, 2); ``ke``, ``kd``, ``rest_length`` scalars or (n,).
+    def add_springs(self, indices, stiffness=None, damping=None, rest_length=None, *, ke=None, kd=None) -> range:
+        """Add springs in bulk: ``indices`` (n, 2); ``stiffness``, ``damping``, ``rest_length`` scalars or (n,).
 
-        A NaN (or ``None``) rest length means "the initial distance".
+        ``stiffness`` is required, ``damping`` defaults to 0; ``ke`` and ``kd`` are their aliases. A NaN
+        (or ``None``) rest length means "the initial distance".
         """
+        c = unalias("springs", {"stiffness": stiffness, "ke": ke, "damping": damping, "kd": kd})
+        stiffness, damping = c["stiffness"][0], c["damping"][0]
+        if stiffness is None:
+            raise SceneTypeError("springs.stiffness", "missing: give stiffness (or its alias ke)")
         ij = _as_pairs("springs.particle_ids", indices)
         n = ij.shape[0]
         s = self._springs
         s["ij"].append(ij)
-        s["ke"].append(_as_column("springs.stiffness", ke, n))
-        s["kd"].append(_as_column("springs.damping", kd, n))
+        s["ke"].append(_as_column("springs.stiffness", stiffness, n))
+        s["kd"].append(_as_column("springs.damping", 0.0 if damping is None else damping, n))
         s["l0"].append(_as_column("springs.rest_length", np.nan if rest_length is None else rest_length, n))
         start = self._n_springs
         self._n_springs += n
@@ -279,17 +317,21 @@ class ModelBuilder:
     # -- generators -----------------------------------------------------------------
     def add_cloth_grid(self, nx: int, ny: int, *, origin=(0.0, 0.0, 0.0), spacing: float | None = None,
                        size: tuple[float, float] | None = None, plane: str = "xy", mass: float | None = None,
-                       total_mass: float | None = None, drag: float = 0.0, ke: float = 1e4, kd: float = 0.0,
-                       ke_y: float | None = None, kd_y: float | None = None, ke_shear: float | None = None,
-                       kd_shear: float | None = None, bending: bool = True, ke_bend: float = 1e2,
-                       kd_bend: float = 0.0, pin: str = "edge") -> range:
+                       total_mass: float | None = None, drag: float = 0.0, stiffness: float | None = None,
+                       damping: float | None = None, stiffness_y: float | None = None, damping_y: float | None = None,
+                       stiffness_shear: float | None = None, damping_shear: float | None = None,
+                       bending: bool = True, stiffness_bend: float | None = None, damping_bend: float | None = None,
+                       pin="edge", ke: float | None = None, kd: float | None = None, ke_y: float | None = None,
+                       kd_y: float | None = None, ke_shear: float | None = None, kd_shear: float | None = None,
+                       ke_bend: float | None = None, kd_bend: float | None = None) -> range:
         """Add an ``nx`` x ``ny`` cloth of particles and springs; return the range of its particles.
 
         Particle ``(i, j)`` is ``start + j*nx + i``; the springs are those of
         :func:`springsim.topology.cloth_grid_pairs` (structural along i and j, both shear
-        diagonals, bending at distance two). Every argument is validated here; an invalid one
-        raises :class:`~springsim.errors.SceneError` (or ``SceneTypeError``) with the path
-        ``cloth.<argument>``.
+        diagonals, bending at distance two). Every argument is validated before anything is
+        added; an invalid one raises :class:`~springsim.errors.SceneError` (or ``SceneTypeError``)
+        with the path ``cloth.<argument>``. The grid is recorded in :attr:`cloth_grids`; its
+        pins can be changed later with :meth:`pin_cloth`, :meth:`set_fixed` or :meth:`fix_box`.
 
         Parameters
         ----------
@@ -305,23 +347,33 @@ class ModelBuilder:
             Mass of each particle [kg], or of the whole cloth shared equally (> 0); default 1 kg in total.
         drag
             Linear drag per particle [N s/m], >= 0.
-        ke, kd
-            Structural springs along i (and along j unless ``ke_y``/``kd_y`` are given) [N/m], [N s/m], >= 0.
-        ke_y, kd_y
-            Structural springs along j; default ``ke``, ``kd``.
-        ke_shear, kd_shear
-            Diagonal springs; default ``ke``, ``kd``.
-        bending, ke_bend, kd_bend
-            Whether to add distance-two springs along i and j, and their stiffness and damping.
+        stiffness, damping
+            Structural springs along i (and along j unless ``stiffness_y``/``damping_y`` are given) [N/m],
+            [N s/m], >= 0; default 1e4 and 0.
+        stiffness_y, damping_y
+            Structural springs along j; default ``stiffness``, ``damping``.
+        stiffness_shear, damping_shear
+            Diagonal springs; default ``stiffness``, ``damping``.
+        bending, stiffness_bend, damping_bend
+            Whether to add distance-two springs along i and j, and their stiffness and damping
+            (default 100 and 0).
         pin
-            One of :data:`springsim.topology.PIN_MODES`.
+            Which particles are fixed: a name (``"edge"`` = ``"bottom"``: row j = 0, ``"top"``: j = ny - 1,
+            ``"left"``: i = 0, ``"right"``: i = nx - 1, ``"bottom-left"``, ``"bottom-right"``,
+            ``"top-left"``, ``"top-right"``, ``"corners"``: the two of row j = 0, ``"all-corners"``,
+            ``"ends"``: rows j = 0 and ny - 1, ``"none"``), local indices ``j*nx + i`` (an integer, a
+            list or an integer array), a boolean array (nx*ny,), ``{"i": I, "j": J}``,
+            ``{"box": [[xmin, ymin, zmin], [xmax, ymax, zmax]]}`` (scene coordinates [m], closed, not
+            empty), or a list of these (their union); ``None`` is ``"none"``. See
+            :mod:`springsim.topology`.
+        ke, kd, ke_y, kd_y, ke_shear, kd_shear, ke_bend, kd_bend
+            Aliases of ``stiffness``, ``damping``, ``stiffness_y``, ... (:data:`COEFFICIENT_ALIASES`); giving
+            both spellings of one coefficient is an error.
         """
         nx = _integer("cloth.nx", nx, 2)
         ny = _integer("cloth.ny", ny, 2)
         if plane not in PLANES:
             raise SceneError("cloth.plane", f"must be one of {', '.join(PLANES)}, got {plane!r:.60}")
-        if pin not in PIN_MODES:
-            raise SceneError("cloth.pin", f"must be one of {', '.join(PIN_MODES)}, got {pin!r:.60}")
         if not isinstance(bending, (bool, np.bool_)):
             raise SceneTypeError("cloth.bending", f"must be True or False, got {bending!r:.60}")
         o = _vector("cloth.origin", origin, 3)
@@ -339,29 +391,150 @@ class ModelBuilder:
         else:
             total = 1.0 if total_mass is None else _number("cloth.total_mass", total_mass, lo=0.0, strict=True)
             m = total / (nx * ny)
-        k = {name: None if v is None else _number(f"cloth.{name}", v, lo=0.0)
-             for name, v in (("drag", drag), ("ke", ke), ("kd", kd), ("ke_y", ke_y), ("kd_y", kd_y),
-                             ("ke_shear", ke_shear), ("kd_shear", kd_shear), ("ke_bend", ke_bend),
-                             ("kd_bend", kd_bend))}
+        drag = _number("cloth.drag", drag, lo=0.0)
+        given = unalias("cloth", {
+            "stiffness": stiffness, "ke": ke, "damping": damping, "kd": kd, "stiffness_y": stiffness_y,
+            "ke_y": ke_y, "damping_y": damping_y, "kd_y": kd_y, "stiffness_shear": stiffness_shear,
+            "ke_shear": ke_shear, "damping_shear": damping_shear, "kd_shear": kd_shear,
+            "stiffness_bend": stiffness_bend, "ke_bend": ke_bend, "damping_bend": damping_bend, "kd_bend": kd_bend})
+        k = {name: None if v is None else _number(f"cloth.{spelled}", v, lo=0.0)
+             for name, (v, spelled) in given.items()}
+        ke_ = 1e4 if k["stiffness"] is None else k["stiffness"]
+        kd_ = 0.0 if k["damping"] is None else k["damping"]
 
         ii, jj = np.meshgrid(np.arange(nx, dtype=np.float64), np.arange(ny, dtype=np.float64))
         pos = np.tile(np.asarray(o), (nx * ny, 1))
         a, b = PLANES[plane]
         pos[:, a] += ii.ravel() * dx
         pos[:, b] += jj.ravel() * dy
-        particles = self.add_particles(pos, None, m, drag=k["drag"], fixed=cloth_pin_mask(nx, ny, pin))
+        fixed = cloth_pin_mask(nx, ny, pin, positions=pos, path="cloth.pin")
+        particles = self.add_particles(pos, None, m, drag=drag, fixed=fixed)
         off = particles.start
         topo = cloth_grid_pairs(nx, ny, bending=bool(bending))
-        ke_, kd_ = k["ke"], k["kd"]
         self.add_springs(topo["structural_x"] + off, ke_, kd_)
-        self.add_springs(topo["structural_y"] + off, ke_ if k["ke_y"] is None else k["ke_y"],
-                         kd_ if k["kd_y"] is None else k["kd_y"])
-        self.add_springs(topo["shear"] + off, ke_ if k["ke_shear"] is None else k["ke_shear"],
-                         kd_ if k["kd_shear"] is None else k["kd_shear"])
+        self.add_springs(topo["structural_y"] + off, ke_ if k["stiffness_y"] is None else k["stiffness_y"],
+                         kd_ if k["damping_y"] is None else k["damping_y"])
+        self.add_springs(topo["shear"] + off, ke_ if k["stiffness_shear"] is None else k["stiffness_shear"],
+                         kd_ if k["damping_shear"] is None else k["damping_shear"])
         if bending:
-            self.add_springs(topo["bending"] + off, k["ke_bend"], k["kd_bend"])
+            self.add_springs(topo["bending"] + off, 1e2 if k["stiffness_bend"] is None else k["stiffness_bend"],
+                             0.0 if k["damping_bend"] is None else k["damping_bend"])
         self._cloth_grids.append(ClothGrid(off, nx, ny))
         return particles
+
+    # -- fixing particles ------------------------------------------------------------
+    @property
+    def cloth_grids(self) -> tuple[ClothGrid, ...]:
+        """The grids added so far by :meth:`add_cloth_grid`, in order (particle ``(i, j)`` is ``start + j*nx + i``)."""
+        return tuple(self._cloth_grids)
+
+    @property
+    def particle_q(self) -> np.ndarray:
+        """Positions (N, 3) [m] of the particles added so far (a read-only array), e.g. to build a mask for
+        :meth:`set_fixed`."""
+        p = self._particles["q"]
+        if len(p) > 1:
+            p[:] = [np.concatenate(p)]
+        q = p[0].view() if p else np.zeros((0, 3))
+        q.setflags(write=False)
+        return q
+
+    def set_fixed(self, indices, fixed: bool = True) -> np.ndarray:
+        """Fix (or, with ``fixed=False``, free) particles already added; return their indices.
+
+        Parameters
+        ----------
+        indices
+            A particle index, a list, range or integer array of them, or a boolean mask of shape
+            (:attr:`particle_count`,).
+        fixed
+            The new flag of those particles (the others keep theirs).
+
+        Returns
+        -------
+        ndarray of int64
+            The affected particle indices, sorted and unique.
+
+        Raises
+        ------
+        SceneError
+            ``set_fixed.indices[k]: particle index out of range [0, N), got ...``, or a wrong type.
+        """
+        if not isinstance(fixed, (bool, np.bool_)):
+            raise SceneTypeError("set_fixed.fixed", f"must be True or False, got {fixed!r:.60}")
+        mask = index_mask("set_fixed.indices", indices, self._n_particles)
+        return self._set_fixed_mask(mask, bool(fixed))
+
+    def fix_box(self, lo, hi, fixed: bool = True) -> np.ndarray:
+        """Fix (or free) the particles whose current position lies in the closed box ``[lo, hi]``.
+
+        Parameters
+        ----------
+        lo, hi
+            Corners ``(xmin, ymin, zmin)`` and ``(xmax, ymax, zmax)`` [m], finite, ``lo <= hi``.
+        fixed
+            The new flag of the particles inside.
+
+        Returns
+        -------
+        ndarray of int64
+            Indices of the particles inside (sorted; empty if none).
+        """
+        if not isinstance(fixed, (bool, np.bool_)):
+            raise SceneTypeError("fix_box.fixed", f"must be True or False, got {fixed!r:.60}")
+        lo_ = np.array(_vector("fix_box.lo", lo, 3))
+        hi_ = np.array(_vector("fix_box.hi", hi, 3))
+        if np.any(lo_ > hi_):
+            raise SceneError("fix_box", f"needs lo <= hi in every coordinate, got lo {_fmt(lo_)}, hi {_fmt(hi_)}")
+        q = self.particle_q
+        return self._set_fixed_mask(np.all((q >= lo_) & (q <= hi_), axis=1), bool(fixed))
+
+    def pin_cloth(self, pin, *, grid=-1, fixed: bool = True) -> np.ndarray:
+        """Fix (or free) particles of a cloth grid already added, chosen by a ``pin`` specification.
+
+        Parameters
+        ----------
+        pin
+            As for :meth:`add_cloth_grid` (``"top"``, ``["left", "right"]``, local indices, ``{"i": , "j": }``,
+            ``{"box": [lo, hi]}``, ...); the other particles keep their flags.
+        grid
+            Which grid: an index into :attr:`cloth_grids` (default the last one added) or a
+            :class:`~springsim.model.ClothGrid`.
+        fixed
+            The new flag of the chosen particles.
+
+        Returns
+        -------
+        ndarray of int64
+            Their (global) particle indices, sorted.
+        """
+        if not isinstance(fixed, (bool, np.bool_)):
+            raise SceneTypeError("pin_cloth.fixed", f"must be True or False, got {fixed!r:.60}")
+        if isinstance(grid, ClothGrid):
+            if grid not in self._cloth_grids:
+                raise SceneError("pin_cloth.grid", f"is not a grid of this builder: {grid}")
+            g = grid
+        else:
+            if isinstance(grid, (bool, np.bool_)) or not isinstance(grid, (int, np.integer)):
+                raise SceneTypeError("pin_cloth.grid", f"must be a grid index or a ClothGrid, got {grid!r:.60}")
+            n = len(self._cloth_grids)
+            if not -n <= grid < n:
+                raise SceneError("pin_cloth.grid", f"no cloth grid {grid} (the builder has {n})")
+            g = self._cloth_grids[grid]
+        count = g.nx * g.ny
+        local = cloth_pin_mask(g.nx, g.ny, pin, positions=self.particle_q[g.start:g.start + count],
+                               path="pin_cloth.pin")
+        mask = np.zeros(self._n_particles, dtype=bool)
+        mask[g.start:g.start + count] = local
+        return self._set_fixed_mask(mask, bool(fixed))
+
+    def _set_fixed_mask(self, mask: np.ndarray, fixed: bool) -> np.ndarray:
+        p = self._particles
+        if p["fixed"]:
+            flags = np.concatenate(p["fixed"])  # always a new array: never writes into a caller's one
+            flags[mask] = fixed
+            p["fixed"] = [flags]
+        return np.flatnonzero(mask)
 
     # -- finalize -------------------------------------------------------------------
     @staticmethod

@@ -6,7 +6,7 @@
 
 from __future__ import annotations
 
-from ..builder import ModelBuilder
+from ..builder import ModelBuilder, unalias
 
 __all__ = ["benchmark_cloth", "benchmark_cloth_grid", "accuracy_cloth", "BENCHMARK_DT"]
 
@@ -14,18 +14,28 @@ __all__ = ["benchmark_cloth", "benchmark_cloth_grid", "accuracy_cloth", "BENCHMA
 BENCHMARK_DT = 1.0 / 60.0
 
 
-def benchmark_cloth_grid(n: int, *, kd: float = 0.0, ke: float = 1e4, ke_bend: float = 1e2,
-                         ke_shear: float | None = None, total_mass: float = 1.0, pin: str = "edge") -> dict:
+def benchmark_cloth_grid(n: int, *, stiffness: float | None = None, damping: float | None = None,
+                         stiffness_shear: float | None = None, stiffness_bend: float | None = None,
+                         total_mass: float = 1.0, pin="edge", ke: float | None = None, kd: float | None = None,
+                         ke_shear: float | None = None, ke_bend: float | None = None) -> dict:
     """Keyword arguments of :meth:`springsim.ModelBuilder.add_cloth_grid` for the benchmark cloth of ``n`` x ``n``.
 
     The single definition of the benchmark cloth, used by :func:`benchmark_cloth` and the YAML
     ``benchmark_cloth:`` block: a 1 m square of total mass ``total_mass`` [kg]; structural and shear
-    springs ``ke`` [N/m] (shear ``ke_shear`` if given), bending springs ``ke_bend``, all with damping
-    ``kd`` [N s/m]; ``pin`` as for the grid.
+    springs ``stiffness`` [N/m] (default 1e4; shear ``stiffness_shear`` if given), bending springs
+    ``stiffness_bend`` (default 100), all with damping ``damping`` [N s/m] (default 0); ``pin`` as for
+    the grid. ``ke``, ``kd``, ``ke_shear``, ``ke_bend`` are aliases (:data:`springsim.builder.COEFFICIENT_ALIASES`).
     """
-    return dict(nx=n, ny=n, size=(1.0, 1.0), total_mass=total_mass, ke=ke, kd=kd,
-                ke_shear=ke if ke_shear is None else ke_shear, kd_shear=kd, bending=True, ke_bend=ke_bend,
-                kd_bend=kd, pin=pin)
+    c = unalias("benchmark_cloth", {"stiffness": stiffness, "ke": ke, "damping": damping, "kd": kd,
+                                    "stiffness_shear": stiffness_shear, "ke_shear": ke_shear,
+                                    "stiffness_bend": stiffness_bend, "ke_bend": ke_bend})
+    k = {name: v for name, (v, _) in c.items()}
+    ke_ = 1e4 if k["stiffness"] is None else k["stiffness"]
+    kd_ = 0.0 if k["damping"] is None else k["damping"]
+    return {"nx": n, "ny": n, "size": (1.0, 1.0), "total_mass": total_mass, "stiffness": ke_, "damping": kd_,
+            "stiffness_shear": ke_ if k["stiffness_shear"] is None else k["stiffness_shear"], "damping_shear": kd_,
+            "bending": True, "stiffness_bend": 1e2 if k["stiffness_bend"] is None else k["stiffness_bend"],
+            "damping_bend": kd_, "pin": pin}
 
 
 def benchmark_cloth(n: int, **options):
@@ -33,8 +43,9 @@ def benchmark_cloth(n: int, **options):
 
     Total mass 1 kg shared equally; structural and shear springs 1e4 N/m, bending (distance
     two) springs 1e2 N/m, undamped; gravity -9.81 m/s^2 along z; the edge y = 0 pinned. Use it
-    with ``h = BENCHMARK_DT`` (1/60 s), starting at rest. ``options`` (``kd``, ``ke``, ``ke_bend``,
-    ``ke_shear``, ``total_mass``, ``pin``) change it, see :func:`benchmark_cloth_grid`; they are
+    with ``h = BENCHMARK_DT`` (1/60 s), starting at rest. ``options`` (``stiffness``, ``damping``,
+    ``stiffness_shear``, ``stiffness_bend``, their aliases ``ke``, ``kd``, ``ke_shear``, ``ke_bend``,
+    ``total_mass``, ``pin``) change it, see :func:`benchmark_cloth_grid`; they are
     validated by :meth:`springsim.ModelBuilder.add_cloth_grid`.
 
     Returns
@@ -54,4 +65,4 @@ def accuracy_cloth(n: int):
     rest buckles within a second: the motion whose error the accuracy and frame-cost benchmarks
     measure at animation time steps.
     """
-    return benchmark_cloth(n, ke=1e3, ke_shear=1e3, ke_bend=1e2)
+    return benchmark_cloth(n, stiffness=1e3, stiffness_shear=1e3, stiffness_bend=1e2)

@@ -6,11 +6,12 @@ The format is documented key by key in ``docs/scene-format.md``. In short::
     particles:
       - {pos: [0, 0, 1], vel: [0, 0, 0], mass: 0.1, fixed: true, drag: 0.0, radius: 0.01}
     springs:
-      - {particle_ids: [0, 1], stiffness: 100.0, damping: 0.5, rest_length: 0.2}
+      - {particle_ids: [0, 1], stiffness: 100.0, damping: 0.5, rest_length: 0.2}   # or ke:, kd:
     gravitational:
       - {particle_ids: [0, 1], G: 100.0, softening: 0.01}
-    cloth: {nx: 64, ny: 64, size: [1, 1], total_mass: 1.0, ke: 1.0e4, pin: edge}
-    benchmark_cloth: {n: 64, kd: 0}
+    cloth: {nx: 64, ny: 64, size: [1, 1], total_mass: 1.0, stiffness: 1.0e4, pin: [top, {i: 0, j: 0}]}
+    benchmark_cloth: {n: 64, damping: 0}
+    pin: [0, {box: [[-1, -1, 0.9], [1, 1, 1.1]]}]   # fix further particles (global indices, boxes)
     plot: {particle_id: 1, dof: 2, y_range: [-1, 1]}
 
 Every problem raises :class:`~springsim.errors.SceneError` whose message is one
@@ -35,10 +36,11 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from ..builder import ModelBuilder
+from ..builder import COEFFICIENT_ALIASES, ModelBuilder
 from ..errors import SceneError
 from ..options import SolverConfig
 from ..model import AXES, Model
+from ..topology import pin_mask
 from .gallery import BENCHMARK_DT, benchmark_cloth_grid
 
 __all__ = ["Scene", "PlotSpec", "load_scene", "parse_scene",
@@ -66,10 +68,12 @@ MAX_NESTING = 64
 ALIAS_EXPANSION = 4
 MIN_EXPANDED_NODES = 1_000_000
 
-_TOP_KEYS = ("solver", "particles", "springs", "gravitational", "plot", "cloth", "benchmark_cloth",
+_TOP_KEYS = ("solver", "particles", "springs", "gravitational", "plot", "cloth", "benchmark_cloth", "pin",
              "name", "description")
 _PARTICLE_KEYS = ("pos", "vel", "mass", "fixed", "radius", "drag")
 _SPRING_KEYS = ("particle_ids", "stiffness", "damping", "rest_length")
+#: Accepted aliases of spring keys (canonical: the assignment's ``stiffness`` and ``damping``).
+_SPRING_ALIASES = {a: c for a, c in COEFFICIENT_ALIASES.items() if c in _SPRING_KEYS}
 _GRAV_KEYS = ("particle_ids", "G", "softening")
 _PLOT_KEYS = ("particle_id", "dof", "y_range")
 _CLOTH_KEYS = tuple(p for p in inspect.signature(ModelBuilder.add_cloth_grid).parameters if p != "self")
@@ -202,20 +206,22 @@ def _vector(path: str, v, n: int = 3) -> list:
     return v
 
 
-def _mapping(path: str, v, allowed: tuple[str, ...], required: tuple[str, ...] = ()) -> dict:
+def _mapping(path: str, v, allowed: tuple[str, ...], required: tuple[str, ...] = (),
+             aliases: dict | None = None) -> dict:
     if type(v) is not dict:
         raise SceneError(path, f"must be a mapping, got {_type_name(v)} {_show(v)}")
-    _keys(path, v, allowed, required)
+    _keys(path, v, allowed, required, aliases)
     return v
 
 
-def _keys(path: str, d: dict, allowed, required=()) -> None:
+def _keys(path: str, d: dict, allowed, required=(), aliases: dict | None = None) -> None:
     for k in d:
         if k not in allowed:
             raise SceneError(path, f"unknown key {_show(k)}; allowed: {', '.join(allowed)}")
     for k in required:
         if k not in d:
-            raise SceneError(path, f"missing required key {k!r}")
+            alias = next((a for a, c in (aliases or {}).items() if c == k), None)
+            raise SceneError(path, f"missing required key {k!r}" + (f" (or its alias {alias!r})" if alias else ""))
 
 
 def _item_list(path: str, v) -> list:
@@ -294,16 +300,26 @@ def _ids(path: str, v, n: int) -> list:
     raise SceneError(path, f"particle id out of range [0, {n}), got {_show(v)}")
 
 
-def _parse_pairs(group: str, items: list, n: int, keys: tuple[str, ...], value_keys: dict) -> dict:
-    """Check pair items; ``value_keys`` maps key -> (required, default) of the number fields."""
+def _parse_pairs(group: str, items: list, n: int, keys: tuple[str, ...], value_keys: dict,
+                 aliases: dict | None = None) -> dict:
+    """Check pair items; ``value_keys`` maps key -> (required, default) of the number fields.
+
+    ``aliases`` maps alias -> canonical key; ``out["aliases"]`` maps the index of every item that used
+    one to {canonical: alias}, so that later errors can name the key as written.
+    """
     m = len(items)
-    allowed = set(keys)
+    aliases = aliases or {}
+    allowed = set(keys) | set(aliases)
+    alias_keys = frozenset(aliases)
     required = ("particle_ids",) + tuple(k for k, (req, _) in value_keys.items() if req)
     ids = [None] * m
     cols = {k: [default] * m for k, (_, default) in value_keys.items()}
+    spelled: dict[int, dict] = {}
     for k, s in enumerate(items):
+        if alias_keys and type(s) is dict and not alias_keys.isdisjoint(s):
+            s, spelled[k] = _unalias_item(f"{group}[{k}]", s, aliases)
         if type(s) is not dict or not allowed.issuperset(s) or not all(r in s for r in required):
-            _mapping(f"{group}[{k}]", s, keys, required)
+            _mapping(f"{group}[{k}]", s, keys + tuple(aliases), required, aliases)
         ids[k] = _ids(f"{group}[{k}].particle_ids", s["particle_ids"], n)
         for key, col in cols.items():
             if key in s:
@@ -315,7 +331,33 @@ def _parse_pairs(group: str, items: list, n: int, keys: tuple[str, ...], value_k
                 col[k] = x
     out = {key: np.array(col, dtype=np.float64) for key, col in cols.items()}
     out["ids"] = np.array(ids, dtype=np.int64).reshape(m, 2)
+    out["aliases"] = spelled
     return out
+
+
+def _unalias_item(path: str, item: dict, aliases: dict) -> tuple[dict, dict]:
+    """``item`` with its alias keys renamed to the canonical ones, and {canonical: alias} of those renamed."""
+    out, used = dict(item), {}
+    for alias, canon in aliases.items():
+        if alias in item:
+            if canon in item:
+                raise SceneError(path, f"give {canon} or its alias {alias}, not both")
+            x = out.pop(alias)
+            if not _is_num(x):
+                _number(f"{path}.{alias}", x)
+            out[canon] = x
+            used[canon] = alias
+    return out, used
+
+
+def _spelled_as_written(err: SceneError, group: str, spelled: dict) -> SceneError:
+    """``err`` naming ``group[k].ke`` when item ``k`` wrote the alias of the canonical key the builder reports."""
+    m = re.fullmatch(re.escape(group) + r"\[(\d+)\]\.(\w+)", err.path)
+    if m is not None:
+        alias = spelled.get(int(m.group(1)), {}).get(m.group(2))
+        if alias is not None:
+            return type(err)(f"{group}[{m.group(1)}].{alias}", err.message)
+    return err
 
 
 def _grid_size(path: str, v) -> int:
@@ -342,9 +384,15 @@ def _parse_benchmark(c) -> tuple[str, dict, dict]:
     _mapping(path, c, _BENCH_KEYS, ("n",))
     options = dict(c)
     n = _grid_size(f"{path}.n", options.pop("n"))
-    return path, benchmark_cloth_grid(n, **options), {"cloth.nx": f"{path}.n", "cloth.ny": f"{path}.n",
-                                                      "cloth.kd_shear": f"{path}.kd", "cloth.kd_bend": f"{path}.kd",
-                                                      "cloth.size": path, "cloth.bending": path, "cloth": path}
+    # the grid's keyword (canonical) -> the block's key as written (an alias if the block used one)
+    written = {COEFFICIENT_ALIASES.get(k, k): k for k in options}
+    stiffness, damping = written.get("stiffness", "stiffness"), written.get("damping", "damping")
+    paths = {"cloth.nx": f"{path}.n", "cloth.ny": f"{path}.n", "cloth.size": path, "cloth.bending": path,
+             "cloth": path, "cloth.stiffness": f"{path}.{stiffness}", "cloth.damping": f"{path}.{damping}",
+             "cloth.damping_shear": f"{path}.{damping}", "cloth.damping_bend": f"{path}.{damping}",
+             "cloth.stiffness_shear": f"{path}.{written.get('stiffness_shear', stiffness)}",
+             "cloth.stiffness_bend": f"{path}.{written.get('stiffness_bend', 'stiffness_bend')}"}
+    return path, benchmark_cloth_grid(n, **options), paths
 
 
 def _renamed(err: SceneError, paths: dict) -> SceneError:
@@ -421,7 +469,8 @@ def parse_scene(doc, *, source: str = "<string>") -> Scene:
     if n == 0:
         raise SceneError("particles", "the scene has no particles (give 'particles', 'cloth' or 'benchmark_cloth')")
     springs = _parse_pairs("springs", _item_list("springs", doc.get("springs")), n, _SPRING_KEYS,
-                           {"stiffness": (True, 0.0), "damping": (False, 0.0), "rest_length": (False, math.nan)})
+                           {"stiffness": (True, 0.0), "damping": (False, 0.0), "rest_length": (False, math.nan)},
+                           _SPRING_ALIASES)
     gravs = _parse_pairs("gravitational", _item_list("gravitational", doc.get("gravitational")), n, _GRAV_KEYS,
                          {"G": (True, 0.0), "softening": (False, math.nan)})
     plot = _parse_plot(doc["plot"], n) if doc.get("plot") is not None else None
@@ -440,9 +489,14 @@ def parse_scene(doc, *, source: str = "<string>") -> Scene:
             b.add_cloth_grid(**kw)
         except SceneError as e:
             raise _renamed(e, paths) from None
+    if doc.get("pin") is not None:  # after every particle exists: global indices, boxes over the whole scene
+        b.set_fixed(pin_mask(doc["pin"], b.particle_count, positions=b.particle_q, path="pin"))
     name = doc.get("name") or (Path(source).stem if source != "<string>" else "scene")
     b.metadata.update(name=name, source=source)
-    model = b.finalize()
+    try:
+        model = b.finalize()
+    except SceneError as e:
+        raise _spelled_as_written(e, "springs", springs["aliases"]) from None
     return Scene(model=model, config=cfg, plot=plot, source=source, name=name,
                  metadata={"description": doc.get("description", "")})
 

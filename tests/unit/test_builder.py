@@ -85,7 +85,7 @@ def test_cloth_grid_stiffness_families():
     (dict(nx=3, ny=3, spacing=0.1, size=(1, 1)), "spacing or size"),
     (dict(nx=3, ny=3, mass=1.0, total_mass=1.0), "mass or total_mass"),
     (dict(nx=3, ny=3, spacing=-1.0), "cloth.spacing"),
-    (dict(nx=3, ny=3, pin="top"), "pin"),
+    (dict(nx=3, ny=3, pin="topp"), "cloth.pin: unknown pin name 'topp'; choose one of none, edge, corners"),
     (dict(nx=3, ny=3, ke="1e4"), "cloth.ke: must be a number"),
     (dict(nx=3, ny=3, ke=-1.0), "cloth.ke: must be >= 0"),
     (dict(nx=3, ny=3, origin=(0, 0)), "cloth.origin"),
