@@ -1,6 +1,6 @@
 """Accuracy at animation time steps: implicit Euler vs BDF2 vs TR-BDF2 (fixed and adaptive steps).
 
-The issue-7 benchmark cloth (``benchmark_cloth(n, ke=1e3, ke_shear=1e3, ke_bend=1e2)``: 1 m,
+The accuracy cloth (``accuracy_cloth(n)`` = ``benchmark_cloth(n, ke=1e3, ke_shear=1e3, ke_bend=1e2)``: 1 m,
 1 kg, edge y = 0 pinned, released horizontal, no damping) over ``T = 1.17 s``. Reported:
 
 1. validation of the reference: a fine-step TR-BDF2 run against scipy's Radau (rtol 1e-10)
@@ -68,7 +68,7 @@ T_END = T_DEFAULT
 H_MAX = None  # step cap of the adaptive runs [s] (--h-max; None: the driver's default)
 H_ANIM = 1.0 / 60.0
 METHODS = ("implicit_euler", "bdf2", "tr_bdf2")
-#: Newton iteration limit of every run (the seed's 5 leaves 13-18 of 70 steps unconverged on the
+#: Newton iteration limit of every run (PA2's 5 leaves 13-18 of 70 steps unconverged on the
 #: n = 32 cloth at h = 1/60 s for implicit Euler and BDF2; 20 converges them, so errors are the methods')
 NEWTON_MAXITER = NEWTON_DEFAULT = 20
 #: linear solver of every run (set from the command line): name, rtol of method runs, rtol of the reference

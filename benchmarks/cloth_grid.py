@@ -1,4 +1,4 @@
-"""Benchmark cloth (issue 4): time per step, assembly, linear solve, iterations, memory.
+"""Benchmark cloth: time per step, assembly, linear solve, iterations, memory.
 
 Usage::
 

@@ -1,6 +1,6 @@
 """Newton at animation steps: which Jacobian mode and linear solver, at what cost and error.
 
-The issue-7 cloth of ``accuracy_at_animation_steps.py`` (same scene, horizon and cached
+The accuracy cloth of ``benchmarks/accuracy.py`` (same scene, horizon and cached
 TR-BDF2 reference), run at a fixed step with each ``solver:jacobian[:noescalate]``
 configuration (``jacobian`` ``default`` = the integrator's choice for that solver) and each
 method. Reported per run: CPU seconds per step, Newton and Krylov iterations per step, steps

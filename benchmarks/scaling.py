@@ -2,7 +2,7 @@
 
 For n = 16 ... 512 (optionally 1024) the n x n benchmark cloth
 (:func:`springsim.scene.benchmark_cloth`) takes ``--warmup`` untimed steps, then
-``--steps`` timed steps of linearized implicit Euler (the solver issue's setting; any
+``--steps`` timed steps of linearized implicit Euler (the cloth-grid benchmark's setting; any
 integrator with ``--integrator``) with the chosen linear solver (default ``auto`` if
 registered, else ``direct``) at relative tolerance 1e-6. Reports median time per step
 (total, assembly, linear solve), Newton and linear iterations per step and the largest

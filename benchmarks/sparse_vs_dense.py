@@ -2,7 +2,7 @@
 
 For benchmark cloths (:func:`springsim.scene.benchmark_cloth`, n x n particles, edge
 pinned, h = 1/60 s, from rest) this times each step of linearized implicit Euler
-(seed eq. 3) split into
+(PA2 eq. 3) split into
 
 * assembly: force evaluation + Jacobians + system matrix,
 * solve: the linear solve,
@@ -47,7 +47,7 @@ COLUMNS = ["n", "particles", "dofs_free", "springs", "nnzb", "symbolic_s", "spar
 
 
 def dense_step(model, terms, q, v, h):
-    """Seed eq. (3) on the dense identity-row system; returns ``(dv (N, 3), assembly_s, solve_s)``."""
+    """PA2 eq. (3) on the dense identity-row system; returns ``(dv (N, 3), assembly_s, solve_s)``."""
     t0 = time.perf_counter()
     qs = q + h * v
     rhs = h * eval_forces(terms, qs, v).reshape(-1)

@@ -125,9 +125,10 @@ class SolverConfig:
     """
 
     integrator: str = option("implicit_euler", kind="name", yaml="type", cli="--integrator", metavar="NAME",
-                             help="time integrator", to="run")
+                             help="time integrator (default: the scene's solver.type)", to="run")
     dt: float = option(None, kind="float", yaml="timestep", cli="--dt", metavar="H", lo=0.0, strict=True,
-                       help="time step [s]; with adaptive stepping the first step and the frame spacing")
+                       help="time step [s] (default: the scene's solver.timestep); with adaptive stepping the first step "
+                            "and the frame spacing")
     steps: int | None = option(None, kind="int", cli="--steps", metavar="N", lo=0, hi=MAX_STEPS,
                                help="number of steps (default: from duration, else 100)")
     duration: float | None = option(None, kind="float", cli="--duration", metavar="T", lo=0.0,
@@ -138,7 +139,7 @@ class SolverConfig:
                                   help="Jacobian mode (default: exact where the solver takes any matrix, else spd)")
     linear_rtol: float | None = option(None, kind="float", cli="--rtol", metavar="R", lo=0.0, strict=True,
                                        to="solver", kwarg="rtol",
-                                       help="relative residual tolerance of iterative linear solvers")
+                                       help="relative residual tolerance of iterative linear solvers (default 1e-6)")
     newton_tol: float | None = option(None, kind="float", cli="--newton-tol", metavar="TOL", lo=0.0, strict=True,
                                       to="integrator", help="Newton update tolerance on |dv| [m/s] (default 1e-5)")
     newton_maxiter: int | None = option(None, kind="int", cli="--newton-maxiter", metavar="N", lo=1, hi=10**6,
@@ -150,9 +151,11 @@ class SolverConfig:
                                          help="Newton residual tolerance, relative to the balanced terms "
                                               "(default 1e-3)")
     time_rtol: float | None = option(None, kind="float", cli="--time-rtol", metavar="R", lo=0.0, strict=True,
-                                     help="adaptive time stepping (bdf2, tr_bdf2): relative local error tolerance")
+                                     help="adaptive time stepping (bdf2, tr_bdf2): relative local error tolerance (default: "
+                                          "fixed steps; with only time_atol, equal to it)")
     time_atol: float | None = option(None, kind="float", cli="--time-atol", metavar="A", lo=0.0, strict=True,
-                                     help="adaptive time stepping: absolute local error tolerance [m, m/s]")
+                                     help="adaptive time stepping: absolute local error tolerance [m, m/s] (default: "
+                                          "time_rtol)")
     max_step: float | None = option(None, kind="float", cli="--max-step", metavar="H", lo=0.0, strict=True,
                                     help="adaptive time stepping: largest step [s] (default a tenth of the run)")
 

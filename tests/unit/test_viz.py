@@ -142,3 +142,22 @@ def test_render_checks_the_trajectory_against_its_scene(tmp_path, capsys):
     assert "computed from another model" in capsys.readouterr().err
     assert main(["render", npz, "--scene", str(SCENES / "three_body.yaml"), "--out", str(tmp_path / "c.png")]) == 2
     assert "has 2 particles" in capsys.readouterr().err
+
+
+def test_render_keeps_a_scenes_own_springs_beside_a_cloth(tmp_path):
+    """A weight hung from a cloth corner is drawn on its spring: the cloth is a surface, every other spring a line."""
+    from mpl_toolkits.mplot3d.art3d import Line3DCollection
+
+    from springsim.viz import _axes, _draw, springs_outside_grids
+
+    b = ModelBuilder()
+    grid = b.add_cloth_grid(4, 4, pin="top")
+    weight = b.add_particle((0.0, 0.0, -0.5), mass=0.5)
+    hook = b.add_spring(grid[0], weight, stiffness=100.0)
+    m = b.finalize()
+    np.testing.assert_array_equal(springs_outside_grids(m), [hook])
+    fig, ax = _axes(require_matplotlib(), -np.ones(3), np.ones(3), (3, 3))
+    lines = [a for a in _draw(ax, m, m.particle_q, show_springs=True, show_particles=True, surface=True)
+             if isinstance(a, Line3DCollection)]
+    assert len(lines) == 1  # the hook (the cloth's own springs are the surface)
+    assert render_frame(m, m.particle_q, tmp_path / "w.png").read_bytes()[:8] == PNG
