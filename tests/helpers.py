@@ -14,7 +14,18 @@ from springsim import ModelBuilder
 from springsim.forces import eval_forces
 from springsim.reference import reference_trajectory
 
-__all__ = ["random_scene", "two_particle_scene", "damped_chain", "fd_jacobians", "rel_err", "observed_errors"]
+__all__ = ["PENDULUM_YAML", "random_scene", "two_particle_scene", "damped_chain", "fd_jacobians", "rel_err", "observed_errors"]
+
+
+#: A two-particle spring scene (one fixed, one hanging) in the assignment's YAML format: 5 implicit Euler steps.
+PENDULUM_YAML = """
+solver: {type: implicit_euler, timestep: 0.01, steps: 5}
+particles:
+  - {pos: [0, 0, 1], mass: 1, fixed: true}
+  - {pos: [0, 0, 0], mass: 1}
+springs:
+  - {particle_ids: [0, 1], stiffness: 100}
+"""
 
 
 def random_scene(rng, n: int = 8, *, springs: int = 12, damping: bool = True, gravitational: int = 3,

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import PENDULUM_YAML
 
 from springsim import cli
 from springsim.errors import SimulationError
@@ -13,14 +14,7 @@ from springsim.errors import SimulationError
 ROOT = Path(__file__).resolve().parents[2]
 SPRING = str(ROOT / "scenes" / "spring.yaml")
 
-SCENE = """
-solver: {type: implicit_euler, timestep: 0.01, steps: 5}
-particles:
-  - {pos: [0, 0, 1], mass: 1, fixed: true}
-  - {pos: [0, 0, 0], mass: 1}
-springs:
-  - {particle_ids: [0, 1], stiffness: 100}
-"""
+SCENE = PENDULUM_YAML
 
 
 @pytest.fixture

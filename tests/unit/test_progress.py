@@ -3,19 +3,13 @@
 import logging
 
 import pytest
+from helpers import PENDULUM_YAML
 
 from springsim import cli, make_integrator, simulate, simulate_adaptive
 from springsim.builder import ModelBuilder
 from springsim.progress import ProgressLog, as_progress, format_seconds, phase
 
-SCENE = """
-solver: {type: implicit_euler, timestep: 0.01, steps: 5}
-particles:
-  - {pos: [0, 0, 1], mass: 1, fixed: true}
-  - {pos: [0, 0, 0], mass: 1}
-springs:
-  - {particle_ids: [0, 1], stiffness: 100}
-"""
+SCENE = PENDULUM_YAML
 
 
 def _pendulum():
