@@ -1,23 +1,72 @@
-"""Export trajectories to files other tools read: legacy VTK (ParaView), OBJ and PLY (Blender).
+"""Export trajectories to the mesh formats of ParaView and Blender, written by meshio.
 
-Small ASCII writers in numpy, no extra dependency. Every frame becomes one file
-``<stem>_<frame:04d>.<ext>`` holding the particle positions, the springs as line
-segments and, for cloth grids (``model.cloth_grids``), the grid quads as faces. VTK frames come
-with a ``<stem>.vtk.series`` JSON file (ParaView
-5.5+) carrying the frame times; ParaView also groups numbered files by itself.
+meshio (https://github.com/nschloe/meshio) is an optional extra: ``pip install
+'springsim[mesh]'``. The geometry of a frame is the particle positions, the cloth grids'
+cells as quads (``model.cloth_grids``) and the springs as line cells; the velocity is point
+data where the format holds it. Formats (:data:`EXPORT_FORMATS`):
+
+``vtu`` (default)
+    VTK XML unstructured grid, one file per frame, quads + lines + ``velocity``; a
+    ``<stem>.vtu.series`` JSON index (ParaView 5.5+) gives the frame times.
+``vtk``
+    Legacy VTK unstructured grid, the same content, with a ``<stem>.vtk.series`` index.
+``xdmf``
+    One XDMF time series (``<stem>.xdmf``, data inline as XML, no HDF5 needed) on the initial
+    positions, with ``displacement`` (from the initial positions) and ``velocity`` per frame;
+    in ParaView apply *Warp By Vector* with ``displacement`` to see the motion. Its cells are
+    the cloth quads when every spring belongs to a cloth grid, otherwise every spring as a line
+    (meshio's time series holds one cell type).
+``ply``
+    Binary PLY per frame: vertices, quad faces, spring edges, ``vx``/``vy``/``vz``.
+``obj``
+    Wavefront OBJ per frame: vertices and quad faces only (OBJ holds no line cells in
+    meshio); a scene without a cloth has nothing to write and is refused.
+
+Every file is written to a temporary name in the output directory and renamed into place, so
+no file is ever half-written. See ``docs/file-formats.md``.
 """
 
 from __future__ import annotations
 
 import json
+import os
+import tempfile
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
 from .errors import SpringsimError
 from .topology import cloth_quads as grid_quads
 
-__all__ = ["EXPORT_FORMATS", "cloth_quads", "write_vtk", "write_obj", "write_ply", "export_trajectory"]
+__all__ = ["EXPORT_FORMATS", "ExportFormat", "cloth_quads", "export_trajectory", "require_meshio"]
+
+
+class ExportFormat(NamedTuple):
+    """An export format: file extension, one-line description, whether it is one file per frame."""
+
+    ext: str
+    description: str
+    per_frame: bool
+
+
+#: Format name -> :class:`ExportFormat`.
+EXPORT_FORMATS = {
+    "vtu": ExportFormat(".vtu", "VTK XML per frame + .vtu.series (ParaView)", True),
+    "vtk": ExportFormat(".vtk", "legacy VTK per frame + .vtk.series (ParaView, VisIt)", True),
+    "xdmf": ExportFormat(".xdmf", "one XDMF time series with displacement and velocity (ParaView)", False),
+    "ply": ExportFormat(".ply", "binary PLY per frame with faces and spring edges (Blender, MeshLab)", True),
+    "obj": ExportFormat(".obj", "Wavefront OBJ per frame, cloth faces only (Blender)", True),
+}
+
+
+def require_meshio(fmt: str):
+    """The meshio module, or a one-line :class:`SpringsimError` with the install hint."""
+    try:
+        import meshio
+    except ImportError:
+        raise SpringsimError(f"export: format {fmt!r} needs meshio: pip install 'springsim[mesh]'") from None
+    return meshio
 
 
 def cloth_quads(model) -> np.ndarray:
@@ -26,89 +75,28 @@ def cloth_quads(model) -> np.ndarray:
     return np.concatenate(quads)
 
 
-def _rows(fh, fmt: str, a: np.ndarray) -> None:
-    if len(a):
-        np.savetxt(fh, a, fmt=fmt)
-
-
-def _geometry(q, lines, quads):
-    """Positions (N, 3) float64, segments (L, 2) and quads (Q, 4) int64 from array-likes."""
-    return (np.asarray(q, dtype=np.float64), np.asarray(lines, dtype=np.int64).reshape(-1, 2),
-            np.asarray(quads, dtype=np.int64).reshape(-1, 4))
-
-
-def write_vtk(path, q: np.ndarray, lines: np.ndarray, quads: np.ndarray, *, title: str = "springsim",
-              point_data: dict | None = None) -> Path:
-    """Write one legacy-VTK ASCII POLYDATA file.
-
-    Parameters
-    ----------
-    path : path
-    q : ndarray (N, 3)
-        Positions [m].
-    lines : ndarray (S, 2)
-        Segments (springs) as particle index pairs.
-    quads : ndarray (Q, 4)
-        Faces.
-    point_data : dict of str -> ndarray (N, 3) or (N,), optional
-        Per-point vectors (e.g. velocity [m/s]) or scalars.
-    """
-    q, lines, quads = _geometry(q, lines, quads)
-    path = Path(path)
-    with open(path, "w") as fh:
-        fh.write(f"# vtk DataFile Version 3.0\n{title}\nASCII\nDATASET POLYDATA\nPOINTS {len(q)} double\n")
-        _rows(fh, "%.9g", q)
-        if len(lines):
-            fh.write(f"LINES {len(lines)} {3 * len(lines)}\n")
-            _rows(fh, "%d", np.column_stack([np.full(len(lines), 2), lines]))
-        if len(quads):
-            fh.write(f"POLYGONS {len(quads)} {5 * len(quads)}\n")
-            _rows(fh, "%d", np.column_stack([np.full(len(quads), 4), quads]))
-        if point_data:
-            fh.write(f"POINT_DATA {len(q)}\n")
-            for name, v in point_data.items():
-                v = np.asarray(v, dtype=np.float64)
-                if v.ndim == 2:
-                    fh.write(f"VECTORS {name} double\n")
-                else:
-                    fh.write(f"SCALARS {name} double 1\nLOOKUP_TABLE default\n")
-                _rows(fh, "%.9g", v.reshape(len(q), -1))
+def _atomic(path: Path, write) -> Path:
+    """Call ``write(tmp)`` for a temporary path next to ``path``, then rename it to ``path``."""
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}-", suffix=path.suffix, dir=path.parent)
+    os.close(fd)
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
     return path
 
 
-def write_obj(path, q: np.ndarray, lines: np.ndarray, quads: np.ndarray) -> Path:
-    """Write one Wavefront OBJ: ``v`` per particle, ``f`` per quad, ``l`` per segment (1-based)."""
-    q, lines, quads = _geometry(q, lines, quads)
-    path = Path(path)
-    with open(path, "w") as fh:
-        fh.write(f"# springsim export: {len(q)} vertices, {len(quads)} faces, {len(lines)} lines\n")
-        _rows(fh, "v %.9g %.9g %.9g", q)
-        _rows(fh, "f %d %d %d %d", quads + 1)
-        _rows(fh, "l %d %d", lines + 1)
-    return path
+def _series(path: Path, names: list[str], times) -> Path:
+    series = {"file-series-version": "1.0",
+              "files": [{"name": n, "time": float(t)} for n, t in zip(names, times)]}
+    return _atomic(path, lambda tmp: Path(tmp).write_text(json.dumps(series, indent=1)))
 
 
-def write_ply(path, q: np.ndarray, lines: np.ndarray, quads: np.ndarray) -> Path:
-    """Write one ASCII PLY with ``vertex``, ``face`` (quads) and ``edge`` (segments) elements."""
-    q, lines, quads = _geometry(q, lines, quads)
-    path = Path(path)
-    with open(path, "w") as fh:
-        fh.write("ply\nformat ascii 1.0\ncomment springsim export\n"
-                 f"element vertex {len(q)}\nproperty double x\nproperty double y\nproperty double z\n"
-                 f"element face {len(quads)}\nproperty list uchar int vertex_indices\n"
-                 f"element edge {len(lines)}\nproperty int vertex1\nproperty int vertex2\nend_header\n")
-        _rows(fh, "%.9g", q)
-        _rows(fh, "%d", np.column_stack([np.full(len(quads), 4), quads]))
-        _rows(fh, "%d", lines)
-    return path
-
-
-#: Format name -> (extension, writer).
-EXPORT_FORMATS = {"vtk": (".vtk", write_vtk), "obj": (".obj", write_obj), "ply": (".ply", write_ply)}
-
-
-def export_trajectory(model, traj, out_dir, *, fmt: str = "vtk", stem: str = "frame", every: int = 1) -> list[Path]:
-    """Write every ``every``-th frame of ``traj`` to ``out_dir`` in format ``fmt``.
+def export_trajectory(model, traj, out_dir, *, fmt: str = "vtu", stem: str = "frame", every: int = 1) -> list[Path]:
+    """Write every ``every``-th frame of ``traj`` (and always the last) to ``out_dir`` in format ``fmt``.
 
     Parameters
     ----------
@@ -118,43 +106,94 @@ def export_trajectory(model, traj, out_dir, *, fmt: str = "vtk", stem: str = "fr
         ``t`` (F,) [s], ``q`` and ``qd`` (F, N, 3).
     out_dir : path
         Created if missing.
-    fmt : {"vtk", "obj", "ply"}
+    fmt : str
+        A key of :data:`EXPORT_FORMATS`.
     stem : str
-        File name prefix.
+        File name prefix: frames are ``<stem>_<frame:04d><ext>``.
     every : int
         Frame stride (>= 1).
 
     Returns
     -------
     list of Path
-        The frame files written (and, for VTK, the ``.vtk.series`` index last).
+        The files written (frames, then the ``.series`` index; or the one XDMF file).
+
+    Raises
+    ------
+    SpringsimError
+        One line: unknown format, bad stride, a trajectory of another particle count, no meshio,
+        or OBJ for a scene without cloth faces.
     """
     if fmt not in EXPORT_FORMATS:
         raise SpringsimError(f"export.format: must be one of {', '.join(EXPORT_FORMATS)}, got {fmt!r}")
-    if int(every) != every or every < 1:
+    if isinstance(every, bool) or int(every) != every or every < 1:
         raise SpringsimError(f"export.every: must be an integer >= 1, got {every!r}")
     if traj.q.shape[1] != model.particle_count:
         raise SpringsimError(f"export: trajectory has {traj.q.shape[1]} particles, the scene "
                              f"{model.particle_count}")
-    ext, writer = EXPORT_FORMATS[fmt]
+    meshio = require_meshio(fmt)
+    quads = cloth_quads(model)
+    lines = np.asarray(model.spring_indices, dtype=np.int64).reshape(-1, 2)
+    if fmt == "obj" and not len(quads):
+        raise SpringsimError("export: OBJ holds faces only and this scene has no cloth; use ply or vtu for springs")
+    frames = list(range(0, traj.q.shape[0], int(every)))
+    if frames[-1] != traj.q.shape[0] - 1:
+        frames.append(traj.q.shape[0] - 1)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    lines = np.asarray(model.spring_indices, dtype=np.int64)
-    quads = cloth_quads(model)
+    spec = EXPORT_FORMATS[fmt]
+    if fmt == "xdmf":
+        return [_write_xdmf(meshio, model, traj, frames, quads, lines, out / f"{stem}{spec.ext}")]
+    cells = [("quad", quads)] if len(quads) else []
+    if fmt != "obj" and len(lines):
+        cells.append(("line", lines))
+    if fmt == "ply":  # PLY stores 32-bit indices (meshio would cast, with a warning on stderr)
+        if model.particle_count >= 2**31:
+            raise SpringsimError("export: PLY indices are 32-bit; this scene has too many particles, use vtu")
+        cells = [(kind, c.astype(np.int32)) for kind, c in cells]
     files = []
-    frames = range(0, traj.q.shape[0], int(every))
     for k in frames:
-        p = out / f"{stem}_{k:04d}{ext}"
-        if fmt == "vtk":
-            write_vtk(p, traj.q[k], lines, quads, title=f"springsim t={traj.t[k]:.9g}",
-                      point_data={"velocity": traj.qd[k]})
+        v = np.asarray(traj.qd[k], dtype=np.float64)
+        if fmt == "ply":
+            point_data = {"vx": v[:, 0], "vy": v[:, 1], "vz": v[:, 2]}
+        elif fmt == "obj":
+            point_data = {}
         else:
-            writer(p, traj.q[k], lines, quads)
-        files.append(p)
-    if fmt == "vtk":
-        series = {"file-series-version": "1.0",
-                  "files": [{"name": f.name, "time": float(traj.t[k])} for f, k in zip(files, frames)]}
-        idx = out / f"{stem}.vtk.series"
-        idx.write_text(json.dumps(series, indent=1))
-        files.append(idx)
+            point_data = {"velocity": v}
+        mesh = meshio.Mesh(np.asarray(traj.q[k], dtype=np.float64), cells, point_data=point_data)
+        path = out / f"{stem}_{k:04d}{spec.ext}"
+        files.append(_atomic(path, lambda tmp: _write(meshio, tmp, mesh, fmt)))
+    if fmt in ("vtu", "vtk"):
+        files.append(_series(out / f"{stem}{spec.ext}.series", [f.name for f in files],
+                             [traj.t[k] for k in frames]))
     return files
+
+
+def _write(meshio, path: str, mesh, fmt: str) -> None:
+    if fmt in ("ply", "vtk"):
+        meshio.write(path, mesh, file_format=fmt, binary=True)
+    else:
+        meshio.write(path, mesh, file_format=fmt)
+
+
+def _write_xdmf(meshio, model, traj, frames, quads, lines, path: Path) -> Path:
+    from .viz import springs_outside_grids
+
+    if len(quads) and not springs_outside_grids(model).size:
+        cells = [("quad", quads)]
+    elif len(lines):
+        cells = [("line", lines)]
+    else:
+        cells = [("vertex", np.arange(model.particle_count, dtype=np.int64)[:, None])]
+    q0 = np.asarray(traj.q[0], dtype=np.float64)
+
+    def write(tmp):
+        # meshio's writer opens ``tmp`` itself (inline XML data: no companion .h5 file)
+        with meshio.xdmf.TimeSeriesWriter(tmp, data_format="XML") as w:
+            w.write_points_cells(q0, cells)
+            for k in frames:
+                w.write_data(float(traj.t[k]), point_data={
+                    "displacement": np.asarray(traj.q[k], dtype=np.float64) - q0,
+                    "velocity": np.asarray(traj.qd[k], dtype=np.float64)})
+
+    return _atomic(path, write)

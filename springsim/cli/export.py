@@ -1,6 +1,7 @@
-"""``springsim export TRAJ.npz SCENE --format vtk|obj|ply --out DIR [--every M]``: one file per frame.
+"""``springsim export TRAJ.npz SCENE [--format FMT] --out DIR [--every M]``: mesh files of a trajectory.
 
-VTK for ParaView, OBJ and PLY for Blender (:mod:`springsim.export`).
+VTU, legacy VTK and XDMF for ParaView, PLY and OBJ for Blender, written by meshio (the ``mesh``
+extra; :mod:`springsim.export`).
 """
 
 from __future__ import annotations
@@ -14,24 +15,28 @@ __all__ = ["export_command"]
 
 
 class _ExportCommand:
-    help = "export a trajectory .npz to per-frame VTK (ParaView), OBJ or PLY (Blender) files"
+    help = "export a trajectory .npz to mesh files: VTU, VTK, XDMF (ParaView), PLY, OBJ (Blender)"
 
     def add_arguments(self, p: argparse.ArgumentParser) -> None:
         from ..export import EXPORT_FORMATS
 
         p.add_argument("trajectory", help="trajectory .npz (springsim run --out)")
         p.add_argument("scene", help="scene YAML the trajectory was computed from")
-        p.add_argument("--format", choices=list(EXPORT_FORMATS), default="vtk", help="file format (default vtk)")
-        p.add_argument("--out", required=True, help="output directory")
-        p.add_argument("--every", type=int_at_least(1), default=1, help="export every M-th frame (default 1)")
+        formats = "; ".join(f"{k}: {v.description}" for k, v in EXPORT_FORMATS.items())
+        p.add_argument("--format", choices=list(EXPORT_FORMATS), default="vtu", metavar="FMT",
+                       help=f"file format, one of {', '.join(EXPORT_FORMATS)} (default vtu). {formats}")
+        p.add_argument("--out", required=True, help="output directory (created if missing)")
+        p.add_argument("--every", type=int_at_least(1), default=1,
+                       help="export every M-th frame, and the last (default 1)")
 
     def run(self, args) -> int:
-        from ..driver import Trajectory
-        from ..export import export_trajectory
+        from ..export import export_trajectory, require_meshio
         from ..scene import load_scene
+        from .run import load_trajectory_for
 
+        require_meshio(args.format)  # before loading anything
         scene = load_scene(Path(args.scene))
-        traj = Trajectory.load(args.trajectory)
+        traj = load_trajectory_for(args.trajectory, scene, args.scene)
         files = export_trajectory(scene.model, traj, args.out, fmt=args.format, stem=scene.name, every=args.every)
         print(f"wrote {len(files)} file(s) to {args.out}")
         return 0
