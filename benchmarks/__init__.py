@@ -25,4 +25,5 @@ BENCHMARKS = {
     "sparse-vs-dense": "sparse_vs_dense",
     "jacobian-modes": "jacobian_modes",
     "blas-threads": "blas_threads",
+    "explicit-speed": "explicit_speed",
 }

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._base import BlockLayout, Blocks, ForceTerm, active_pairs, outer, pair_geometry, scatter_pair_forces, scratch
+from ._base import BlockLayout, Blocks, ForceTerm, PairIncidence, active_pairs, outer, pair_geometry, scratch
 
 __all__ = ["ForceGravitational"]
 
@@ -46,6 +46,7 @@ class ForceGravitational(ForceTerm):
         self.c = np.asarray(c, dtype=np.float64)
         self.eps = np.broadcast_to(np.asarray(eps, dtype=np.float64), self.c.shape).copy()
         self.layout_q = BlockLayout.pairs(self.pairs)
+        self.incidence = PairIncidence(self.pairs)
 
     @classmethod
     def from_model(cls, model, *, skip_fixed=True):
@@ -59,9 +60,10 @@ class ForceGravitational(ForceTerm):
                    model.gravitational_softening[keep])
 
     def eval_force(self, q, qd, f_out):
-        d, l, n, near = pair_geometry(q, self.pairs, self.eps)
-        ls = np.maximum(l, self.eps)
-        scatter_pair_forces(f_out, self.pairs, -(self.c / ls**3)[:, None] * d)
+        d = self.incidence.diff(q)
+        ls = np.maximum(np.sqrt(np.einsum("ij,ij->i", d, d)), self.eps)
+        d *= (-self.c / ls**3)[:, None]
+        self.incidence.scatter(d, f_out)
 
     def eval_jacobians(self, q, qd, mode="exact", *, work=None):
         P = self.pairs.shape[0]

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._base import BlockLayout, Blocks, ForceTerm, active_pairs, outer, pair_geometry, scatter_pair_forces, scratch
+from ._base import BlockLayout, Blocks, ForceTerm, PairIncidence, active_pairs, outer, pair_geometry, scratch
 
 __all__ = ["ForceSpring"]
 
@@ -57,6 +57,9 @@ class ForceSpring(ForceTerm):
         self.damped = np.flatnonzero(self.kd > 0)
         self.layout_q = BlockLayout.pairs(self.pairs)
         self.layout_qd = BlockLayout.pairs(self.pairs[self.damped]) if self.damped.size else None
+        self.incidence = PairIncidence(self.pairs)
+        self._damped_incidence = PairIncidence(self.pairs[self.damped])
+        self._kd_damped = self.kd[self.damped]
 
     @classmethod
     def from_model(cls, model, *, skip_fixed=True):
@@ -75,14 +78,25 @@ class ForceSpring(ForceTerm):
         return 1.0 - self.l0 / np.where(near, self.eps, l)
 
     def eval_force(self, q, qd, f_out):
-        d, l, n, near = pair_geometry(q, self.pairs, self.eps)
-        f = -(self.ke * self._elastic_coef(l, near))[:, None] * d
-        if self.damped.size:
-            p = self.pairs[self.damped]
-            nd = n[self.damped]
-            v = qd[p[:, 0]] - qd[p[:, 1]]
-            f[self.damped] -= (self.kd[self.damped] * np.einsum("ij,ij->i", nd, v))[:, None] * nd
-        scatter_pair_forces(f_out, self.pairs, f)
+        # elastic: f = -k (1 - l0/max(l, eps)) d, no direction vector needed
+        d = self.incidence.diff(q)
+        l = np.sqrt(np.einsum("ij,ij->i", d, d))
+        damping = None
+        if self.damped.size:  # -b (n . v) n, with n = 0 below eps
+            s = self.damped
+            ls = l[s]
+            inv = np.divide(1.0, ls, out=np.zeros_like(ls), where=ls >= self.eps)
+            n = d[s] * inv[:, None]
+            v = self._damped_incidence.diff(qd)
+            damping = (self._kd_damped * np.einsum("ij,ij->i", n, v))[:, None] * n
+        scale = np.maximum(l, self.eps, out=l)
+        np.divide(self.l0, scale, out=scale)
+        scale -= 1.0
+        scale *= self.ke  # -k (1 - l0/l)
+        f = np.multiply(d, scale[:, None], out=d)
+        if damping is not None:
+            f[self.damped] -= damping
+        self.incidence.scatter(f, f_out)
 
     def eval_jacobians(self, q, qd, mode="exact", *, work=None):
         P = self.pairs.shape[0]

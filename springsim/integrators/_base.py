@@ -145,14 +145,18 @@ class Integrator(ABC):
         self.fixed = model.particle_fixed
         self._inv_mass = np.where(self.fixed, 0.0, 1.0 / model.particle_mass)[:, None]
         self._f = np.zeros((model.particle_count, 3))
+        self._a = np.zeros((model.particle_count, 3))
         #: ``(err_q [m], err_v [m/s])``, arrays (N, 3): local error estimate of the last step
         #: (integrators with :attr:`has_error_estimate`), else None.
         self.error_estimate: tuple[np.ndarray, np.ndarray] | None = None
 
     def acceleration(self, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
-        """``M^-1 F(q, qd)``, zero for fixed particles, shape (N, 3)."""
+        """``M^-1 F(q, qd)``, zero for fixed particles, shape (N, 3).
+
+        The result lives in a buffer of the integrator's, overwritten by the next call.
+        """
         eval_forces(self.terms, q, qd, out=self._f)
-        a = self._f * self._inv_mass
+        a = np.multiply(self._f, self._inv_mass, out=self._a)
         a[self.fixed] = 0.0  # not inf * 0 = NaN when a force overflows on a fixed particle
         return a
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import numpy as np
+
 from ._base import Integrator, StepStats
 
 __all__ = ["IntegratorSymplecticEuler"]
@@ -12,8 +14,8 @@ class IntegratorSymplecticEuler(Integrator):
 
     def step(self, state_in, state_out, dt):
         q, qd = state_in.particle_q, state_in.particle_qd
-        a = self.acceleration(q, qd)
-        qd1 = qd + dt * a
-        state_out.particle_q[...] = q + dt * qd1
-        state_out.particle_qd[...] = qd1
+        a = self.acceleration(q, qd)  # a buffer of the integrator's, reused as scratch below
+        qd1 = state_out.particle_qd
+        np.add(qd, np.multiply(a, dt, out=a), out=qd1)
+        np.add(q, np.multiply(qd1, dt, out=a), out=state_out.particle_q)
         return StepStats(dt)
