@@ -174,6 +174,11 @@ class AMGPreconditioner(Preconditioner):
             self._skip = self._next_cooldown
             self._next_cooldown = min(2 * max(self._next_cooldown, 1), self.max_cooldown)
 
+    def build(self, A):
+        """A fresh hierarchy for ``A`` (no reuse): its V-cycle ``r -> M^-1 r``."""
+        self._build(A, None)
+        return self._precond
+
     def setup(self, A):
         """``(apply, setup_s, fresh)`` for the system ``A``: a V-cycle ``r -> M^-1 r``.
 

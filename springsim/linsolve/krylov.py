@@ -16,6 +16,8 @@ preconditioner, ``r = b - A x``, ``z = M^-1 r``, ``p`` the search direction.
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
+
 from typing import ClassVar
 
 import numpy as np
@@ -109,7 +111,7 @@ def pcg(A, b: np.ndarray, precond, x0: np.ndarray | None, *, rtol: float, atol: 
     return x, _judge(A, b, x, rtol, atol, it, breakdown)
 
 
-class KrylovMethod:
+class KrylovMethod(ABC):
     """Base of the Krylov methods: ``__call__(A, b, precond, x0, *, rtol, atol, maxiter) -> (x, KrylovInfo)``."""
 
     #: Registry name.
@@ -117,8 +119,9 @@ class KrylovMethod:
     #: Whether the method needs a symmetric positive definite matrix and preconditioner.
     needs_spd: ClassVar[bool] = False
 
+    @abstractmethod
     def __call__(self, A, b, precond, x0, *, rtol: float, atol: float, maxiter: int):
-        raise NotImplementedError  # pragma: no cover - abstract
+        """Solve ``A x = b`` from ``x0``; ``(x, KrylovInfo)``."""
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}()"

@@ -18,6 +18,8 @@ line in :data:`PRECONDITIONERS`.
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
+
 import time
 from typing import Callable, ClassVar
 
@@ -40,7 +42,7 @@ def block_diagonal(A) -> np.ndarray:
     return bsr_block_diagonal(bsr.tobsr(blocksize=(3, 3)))
 
 
-class Preconditioner:
+class Preconditioner(ABC):
     """Base of the preconditioners (protocol in the module docstring).
 
     Subclasses set :attr:`name` and implement :meth:`build`; those that keep their operator
@@ -55,9 +57,9 @@ class Preconditioner:
     def __init__(self):
         self._cache = None  # (matrix, its version, apply): the matrix is held, so its identity stays unique
 
+    @abstractmethod
     def build(self, A):
         """The operator ``r -> M^-1 r`` for ``A``, or None when ``A`` does not allow one (a singular diagonal)."""
-        raise NotImplementedError  # pragma: no cover - abstract
 
     def setup(self, A):
         """``(apply, setup_s, fresh)`` for ``A``; ``apply`` is None when impossible. Built once per assembled
