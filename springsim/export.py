@@ -38,6 +38,7 @@ import numpy as np
 
 from .errors import SpringsimError
 from .topology import cloth_quads as grid_quads
+from .topology import springs_outside_grids
 
 __all__ = ["EXPORT_FORMATS", "ExportFormat", "cloth_quads", "export_trajectory", "require_meshio"]
 
@@ -177,8 +178,6 @@ def _write(meshio, path: str, mesh, fmt: str) -> None:
 
 
 def _write_xdmf(meshio, model, traj, frames, quads, lines, path: Path) -> Path:
-    from .viz import springs_outside_grids
-
     if len(quads) and not springs_outside_grids(model).size:
         cells = [("quad", quads)]
     elif len(lines):

@@ -45,6 +45,7 @@ __all__ = [
     "cloth_quads",
     "index_mask",
     "pin_mask",
+    "springs_outside_grids",
 ]
 
 _S = slice(None)
@@ -319,3 +320,14 @@ def cloth_quads(start: int, nx: int, ny: int) -> np.ndarray:
     """The (nx-1)(ny-1) quads (Q, 4) of a grid whose particle (0, 0) has index ``start``, counter-clockwise."""
     idx = start + np.arange(nx * ny, dtype=np.int64).reshape(ny, nx)
     return np.stack([idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, 1:].ravel(), idx[1:, :-1].ravel()], axis=1)
+
+
+def springs_outside_grids(model) -> np.ndarray:
+    """Indices of the springs that do not join two particles of the same cloth grid (drawn as lines
+    when the grids are drawn as surfaces, e.g. a weight hung from a cloth)."""
+    inside = np.zeros(model.spring_count, dtype=bool)
+    ij = model.spring_indices
+    for start, nx, ny in model.cloth_grids:
+        end = start + nx * ny
+        inside |= (ij >= start).all(axis=1) & (ij < end).all(axis=1)
+    return np.flatnonzero(~inside)

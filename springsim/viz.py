@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import SpringsimError
+from .topology import springs_outside_grids
 
 __all__ = ["plot_dof", "render_frame", "render_gif", "require_matplotlib", "run_title", "springs_outside_grids",
            "DOF_NAMES"]
@@ -104,17 +105,6 @@ def run_title(traj, scene: str | None = None) -> str:
         parts.append(f"adaptive, rtol = {m['time_rtol']:g}")
     body = ", ".join(parts)
     return f"{scene}: {body}" if scene and body else (scene or body)
-
-
-def springs_outside_grids(model) -> np.ndarray:
-    """Indices of the springs that do not join two particles of the same cloth grid (drawn as lines
-    when the grids are drawn as surfaces, e.g. a weight hung from a cloth)."""
-    inside = np.zeros(model.spring_count, dtype=bool)
-    ij = model.spring_indices
-    for start, nx, ny in model.cloth_grids:
-        end = start + nx * ny
-        inside |= (ij >= start).all(axis=1) & (ij < end).all(axis=1)
-    return np.flatnonzero(~inside)
 
 
 def _bounds(q: np.ndarray):
