@@ -1,53 +1,60 @@
-"""Time per 1/60 s frame at 1 cm RMS, next to explicit symplectic Euler.
+"""Time per 1/60 s frame within 1 cm of the true motion, implicit candidates next to explicit symplectic Euler.
 
-Caution: the error here is against the same method at a smaller step (below), which understates the
-error against the true motion once the cloth buckles (BENCHMARKS.md, section 8); errors against a
-validated reference of the ODE are measured by ``speed-vs-error`` and ``accuracy``.
+Every error here is measured against a **validated reference of the ODE**, never against the method
+itself at a smaller step. For each cloth size ``n`` (default 32 64) on the accuracy cloth
+``accuracy_cloth(n)`` = ``benchmark_cloth(n, ke=1e3, ke_shear=1e3, ke_bend=1e2)`` (1 m, 1 kg, edge
+y = 0 pinned, released horizontal at rest, undamped), over a window of ``--frames`` frames of 1/60 s
+from the release (default 70, i.e. 1.167 s: the fall, the buckling and the folds after it):
 
-For each cloth size ``n`` (default 128 256 512) on the accuracy cloth
-``benchmark_cloth(n, ke=1e3, ke_shear=1e3, ke_bend=1e2)`` (1 m, 1 kg, edge y = 0 pinned,
-released horizontal at rest, undamped):
-
-1. **Explicit limit.** ``omega_max^2`` = largest eigenvalue of ``M^-1 K`` (``K = -dF/dq``,
-   exact Jacobian, free DOFs) from a plain Lanczos run on ``M^-1/2 K M^-1/2`` with the sparse
-   matrix springsim's :class:`~springsim.assembly.SystemAssembler` assembles (no dense
-   matrices), at the initial state and at a deformed one (the end of the finest implicit
-   reference run, i.e. the cloth after ``T_w`` of its fall); the Gershgorin bound is printed
-   beside it. Symplectic Euler is stable for ``h < 2 / omega_max``, so a 1/60 s frame needs
-   ``S = ceil(omega_max / (2 * 60))`` substeps. This is then **verified** by running
-   ``symplectic_euler`` at ``S`` substeps per frame (must stay finite with bounded energy) and
-   at ``floor(0.7 S)`` (must blow up or gain energy) for a short window (``--explicit-window``,
-   capped at ``--explicit-max-steps`` substeps). If ``S`` itself fails, the count is raised by
-   10 % until a run passes, and the verified count is the one reported. Wall time per frame =
-   ``S`` times the measured time per substep.
-2. **Implicit candidates** (``--candidates``, ``method:1/h:solver``): each is first run for
-   ``--probe-steps`` steps (a throw-away run) to estimate its cost per frame, then candidates are
-   run from t = 0 over the window ``T_w`` (``--window``) in order of that estimate. A candidate's
-   error is the RMS over particles of its position error at ``T_w`` against a reference of the
-   **same method** with a ``--ref-ratio`` times smaller step (tight Newton and linear tolerances;
-   references are cached per method, and a finer one serves every coarser candidate; for a
-   first-order method the measured error is ~(1 - 1/ratio) of the true one, for second order
-   ~(1 - 1/ratio^2)). The first candidate below ``--target`` (1 cm) is the provisional winner;
-   candidates whose probe is cheaper than its measured cost are still run, and the cheapest
-   passing one is reported. Candidates or references whose estimated cost exceeds the size's
-   remaining ``--budget`` are skipped (status says so); if none could be measured, the row
-   reports the cheapest probe with its error left empty.
-3. Prints a table (n, DOFs, cheapest config, its h, error, wall s per frame, symplectic Euler
-   substeps and wall s per frame) and writes ``results/frame_cost.csv`` (summary),
-   ``results/frame_cost_candidates.csv`` (every candidate and reference) and
+1. **Reference** (:mod:`benchmarks.reference_cache`). Velocity Verlet (second order, symplectic; only
+   the force evaluation is shared with springsim's integrators) at ``S_ref``, ``2 S_ref``, ``4 S_ref``
+   substeps per frame (``--ref-levels``, default 3; ``S_ref`` = ``--ref-base`` (2) times the explicit
+   substep count of step 2 at the initial state, or ``--ref-substeps``), positions recorded at every
+   frame; the finest level is the reference. Its convergence is reported as the largest difference
+   between consecutive levels (RMS over particles, max over frames) and the median over frames of the
+   ratio of consecutive differences (4 for second order). At sizes up to ``--cross-check-max-n`` the
+   finest level is also compared with :func:`springsim.reference.reference_trajectory` (scipy
+   ``solve_ivp``: Radau with the sparse Jacobian up to 600 DOFs, DOP853 above, rtol 1e-10). The
+   reference's **floor** is the larger of the two finest levels' difference and that cross-check
+   difference: an error below it is not reported as a number but as ``< floor``, and a floor at or
+   above ``--target`` makes the size undecidable (no winner). The levels and the cross-check are cached
+   in ``results/frame_ref/`` keyed by case, method, substeps, frames and the model's fingerprint.
+2. **Explicit limit.** ``omega_max^2`` = largest eigenvalue of ``M^-1 K`` (``K = -dF/dq``, exact
+   Jacobian, free DOFs) from a plain Lanczos run on ``M^-1/2 K M^-1/2`` with the sparse matrix
+   springsim's :class:`~springsim.assembly.SystemAssembler` assembles, at the initial state and at the
+   reference's last frame; the Gershgorin bound is printed beside it. Symplectic Euler is stable for
+   ``h < 2 / omega_max``, so a frame needs ``S = ceil(omega_max / (2 * 60))`` substeps. This is
+   **verified** by running ``symplectic_euler`` from a state perturbed by 1e-6 m at ``S`` substeps per
+   frame (must stay finite with bounded energy) and at ``floor(0.7 S)`` (must blow up or gain energy)
+   for ``--explicit-window`` s (at most ``--explicit-max-steps`` substeps); if ``S`` fails it is raised
+   by 10 % until a run passes. Then ``symplectic_euler`` at the verified ``S`` runs over the whole
+   window from the unperturbed start, and its error and cost per frame are reported.
+3. **Candidates** (``--candidates``, ``method:1/h:solver``; ``1/h`` a multiple of 60; explicit methods,
+   ``verlet`` included, take the solver ``none``): each is probed for ``--probe-steps`` steps to
+   estimate its cost, then run from t = 0 in order of that estimate. Its **error** is the RMS over
+   particles of the position error against the reference at every frame, **max over the frames** of
+   the window. A run stops early once that error exceeds ``--stop-above`` (default 5 cm; 0: never);
+   its error is then a lower bound (``err_lower_bound``). The cheapest candidate (CPU time per frame)
+   whose error is below ``--target`` (1 cm) wins. Unless ``--measure-all``, candidates whose probe is
+   dearer than the cheapest passing one are not run; candidates whose estimated cost exceeds the
+   size's remaining ``--budget`` are skipped (the status says which).
+4. Prints a table and writes ``results/frame_cost.csv`` (one row per size), ``results/frame_cost_candidates.csv``
+   (the reference levels, the cross-check, symplectic Euler and every candidate) and
    ``results/frame_cost.md`` (``--append`` keeps other sizes' rows).
 
-Costs per frame are measured over the stepping loops (integrator construction, i.e. the
-symbolic assembly, excluded; AMG setups during steps included), as wall time
-(``time.perf_counter``) and as this process's CPU time (``time.process_time``). On the shared
-machine the wall time depends on the other jobs (the load average is recorded with every
-size); the single-threaded CPU time does much less, so "cheapest" is decided on CPU time.
+Costs per frame are measured over the stepping loops only (integrator construction, i.e. the
+symbolic assembly, excluded; AMG setups during steps included), as this process's CPU time
+(``time.process_time``) and as wall time (``time.perf_counter``). On a shared machine the wall
+time depends on the other jobs (the load average is recorded with every size); the single-threaded
+CPU time much less, so "cheapest" is decided on CPU time. A run stopped early is costed over the
+frames it ran (the early, pre-buckling frames, where Newton methods need fewer iterations).
 
 Usage::
 
-    OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 python -m benchmarks frame-cost            # n = 128 256 512
-    python -m benchmarks frame-cost --sizes 128 --window 0.25 --ref-ratio 8
-    python -m benchmarks frame-cost --quick                                            # n = 6 (tests)
+    export OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1
+    python -m benchmarks frame-cost                                   # n = 32 64, default candidates
+    python -m benchmarks frame-cost --sizes 128 --stop-above 0 --candidates linearized_implicit:120:auto
+    python -m benchmarks frame-cost --quick                           # n = 6 (tests)
 """
 
 from __future__ import annotations
@@ -66,33 +73,43 @@ import numpy as np
 
 from springsim.energy import total_energy
 
-from .common import RESULTS_DIR, machine_info, markdown_table, write_csv
+from . import reference_cache
+from .common import RESULTS_DIR, fmt, machine_info, markdown_table, write_csv
 
-__all__ = ["COLUMNS", "CANDIDATE_COLUMNS", "DEFAULT_CANDIDATES", "FRAME_DT", "Candidate", "cloth",
-           "reference_solver", "omega_max", "explicit_substeps", "run_symplectic",
-           "verify_explicit", "parse_candidate", "main"]
+__all__ = ["COLUMNS", "CANDIDATE_COLUMNS", "DEFAULT_CANDIDATES", "DEFAULT_FRAMES", "FRAME_DT", "Candidate", "cloth",
+           "omega_max", "explicit_substeps", "run_symplectic", "verify_explicit", "parse_candidate", "Run",
+           "make_run", "track_errors", "measure_size", "main"]
 
 #: Frame length [s].
 FRAME_DT = 1.0 / 60.0
+#: Frames in the default window (1.167 s from the release).
+DEFAULT_FRAMES = 70
 
 #: Columns of the summary CSV (one row per size).
-COLUMNS = ["n", "dofs", "config", "method", "solver", "h", "steps_per_frame", "err_rms", "ref_h", "window_s",
+COLUMNS = ["n", "dofs", "frames", "window_s", "target", "ref_method", "ref_substeps", "ref_h", "ref_diffs",
+           "ref_median_ratios", "ref_pair_diff", "xcheck_method", "xcheck_diff", "floor", "ref_usable", "ref_cpu_s",
+           "config", "method", "solver", "h", "steps_per_frame", "err_rms", "below_floor", "err_frame",
            "wall_per_frame_s", "cpu_per_frame_s", "newton_per_step", "linear_per_step", "newton_failures",
-           "se_substeps", "se_h", "se_wall_per_frame_s", "se_cpu_per_frame_s", "se_wall_per_substep_s", "se_stable",
-           "se_window_s", "se_lower_substeps", "se_lower_unstable", "se_lower_detected_at_s", "omega_max",
-           "omega_initial", "omega_deformed", "omega_gershgorin", "lanczos_steps", "substeps_computed", "load_start",
-           "load_end", "status"]
+           "se_substeps", "se_h", "se_err_rms", "se_below_floor", "se_err_frame", "se_wall_per_frame_s",
+           "se_cpu_per_frame_s", "se_window_finite", "se_stable", "se_window_s", "se_lower_substeps",
+           "se_lower_unstable", "se_lower_detected_at_s", "cpu_ratio_to_se", "omega_max", "omega_initial",
+           "omega_deformed", "omega_gershgorin", "lanczos_steps", "substeps_computed", "load_start", "load_end",
+           "status"]
 
-#: Columns of the per-candidate CSV (candidates and references).
-CANDIDATE_COLUMNS = ["n", "role", "config", "method", "solver", "h", "steps", "probe_frame_s",
-                     "probe_cpu_frame_s", "wall_s", "wall_per_frame_s", "cpu_per_frame_s", "err_rms", "ref_h",
-                     "newton_per_step", "linear_per_step", "newton_failures", "status"]
+#: Columns of the per-run CSV (reference levels, cross-check, symplectic Euler, candidates).
+CANDIDATE_COLUMNS = ["n", "role", "config", "method", "solver", "h", "steps_per_frame", "steps", "frames_run",
+                     "probe_frame_s", "probe_cpu_frame_s", "wall_s", "cpu_s", "wall_per_frame_s", "cpu_per_frame_s",
+                     "err_rms", "below_floor", "err_lower_bound", "err_frame", "err_final", "err_raw", "floor",
+                     "diff_to_next", "newton_per_step", "linear_per_step", "newton_failures", "status"]
 
 #: Default candidates, ``method:1/h:solver``.
-DEFAULT_CANDIDATES = ("linearized_implicit:60:auto", "linearized_implicit:120:auto",
-                      "linearized_implicit:240:auto", "implicit_euler:60:auto",
-                      "bdf2:60:auto", "bdf2:120:auto", "tr_bdf2:60:auto", "tr_bdf2:120:auto", "tr_bdf2:240:auto",
-                      "tr_bdf2:240:cg")
+DEFAULT_CANDIDATES = ("linearized_implicit:60:auto", "linearized_implicit:120:auto", "linearized_implicit:240:auto",
+                      "linearized_implicit:480:auto", "implicit_euler:60:auto", "implicit_euler:240:auto",
+                      "bdf2:60:auto", "bdf2:240:auto", "tr_bdf2:60:auto", "tr_bdf2:120:auto", "tr_bdf2:240:auto",
+                      "tr_bdf2:480:auto")
+
+#: Candidates of ``--quick``.
+QUICK_CANDIDATES = ("linearized_implicit:60:direct", "tr_bdf2:60:direct", "tr_bdf2:240:direct")
 
 
 def cloth(n: int):
@@ -195,10 +212,10 @@ def verify_explicit(model, omega: float, *, window: float, max_steps: int | None
                 lower_detected_at_s=(float("nan") if low_run is None else low_run["detected_at_s"]))
 
 
-# -- implicit candidates ------------------------------------------------------------------------------------------
+# -- candidates -----------------------------------------------------------------------------------------------------
 @dataclass
 class Candidate:
-    """An implicit configuration: integrator name, step ``1/hinv`` [s], linear solver."""
+    """A configuration: integrator name (or ``verlet``), step ``1/hinv`` [s], linear solver (``none`` if explicit)."""
 
     method: str
     hinv: float
@@ -209,12 +226,26 @@ class Candidate:
         return 1.0 / self.hinv
 
     @property
+    def steps_per_frame(self) -> int:
+        return max(1, int(round(self.hinv * FRAME_DT)))
+
+    @property
+    def implicit(self) -> bool:
+        from springsim.integrators import INTEGRATORS
+
+        return self.method in INTEGRATORS and INTEGRATORS[self.method].implicit
+
+    @property
     def label(self) -> str:
-        return f"{self.method} h=1/{self.hinv:g} {self.solver}"
+        return f"{self.method} h=1/{self.hinv:g}" + (f" {self.solver}" if self.solver != "none" else "")
 
 
 def parse_candidate(text: str) -> Candidate:
-    """``method:1/h:solver`` (e.g. ``tr_bdf2:240:auto``) to a :class:`Candidate`; one-line errors name the field."""
+    """``method:1/h:solver`` (e.g. ``tr_bdf2:240:auto``, ``symplectic_euler:2880:none``) to a :class:`Candidate`.
+
+    ``1/h`` must be a whole multiple of the frame rate (60); implicit methods take a registered linear
+    solver, explicit ones (and ``verlet``) ``none``. Errors are one line naming the field.
+    """
     from springsim.integrators import INTEGRATORS
     from springsim.linsolve import LINEAR_SOLVERS
 
@@ -222,22 +253,30 @@ def parse_candidate(text: str) -> Candidate:
     if len(parts) != 3:
         raise argparse.ArgumentTypeError(f"--candidates: expected method:1/h:solver, got {text!r}")
     method, hinv, solver = parts
-    if method not in INTEGRATORS or not INTEGRATORS[method].implicit:
-        raise argparse.ArgumentTypeError(f"--candidates: method must be an implicit integrator, got {method!r}")
+    if method not in INTEGRATORS and method != "verlet":
+        raise argparse.ArgumentTypeError(f"--candidates: unknown method {method!r} (an integrator or verlet)")
     try:
         hv = float(hinv)
     except ValueError:
         hv = float("nan")
     if not (np.isfinite(hv) and hv > 0):
         raise argparse.ArgumentTypeError(f"--candidates: 1/h must be a positive number, got {hinv!r}")
-    if solver not in LINEAR_SOLVERS:
+    spf = hv * FRAME_DT
+    if round(spf) < 1 or abs(spf - round(spf)) > 1e-9 * spf:
+        raise argparse.ArgumentTypeError(f"--candidates: 1/h must be a whole multiple of the frame rate 60, "
+                                         f"got {hinv!r}")
+    implicit = method in INTEGRATORS and INTEGRATORS[method].implicit
+    if implicit and solver not in LINEAR_SOLVERS:
         raise argparse.ArgumentTypeError(f"--candidates: unknown linear solver {solver!r}")
+    if not implicit and solver != "none":
+        raise argparse.ArgumentTypeError(f"--candidates: explicit method {method!r} takes the solver 'none', "
+                                         f"got {solver!r}")
     return Candidate(method, hv, solver)
 
 
 @dataclass
 class Run:
-    """A stepping run that can be advanced in pieces (probe first, continue later)."""
+    """An implicit integrator's run from the model's initial state, advanced in pieces (probe first, continue later)."""
 
     model: object
     method: str
@@ -255,13 +294,20 @@ class Run:
     def __post_init__(self):
         from springsim.integrators import INTEGRATORS, make_integrator
 
-        opts = {k: v for k, v in self.options.items() if k not in INTEGRATORS[self.method].unused_options}
+        cls = INTEGRATORS[self.method]
+        opts = {k: v for k, v in self.options.items() if k not in cls.unused_options}
         so = dict(opts.pop("solver_options", {}) or {})
         if self.solver in ("direct", "dense"):
             so.pop("rtol", None)
+        if "newton_maxiter" in opts and opts["newton_maxiter"] is None:  # the integrator's default, at least 20
+            opts["newton_maxiter"] = max(int(getattr(cls, "default_newton_maxiter", 20)), 20)
         self.integ = make_integrator(self.method, self.model, solver=self.solver, solver_options=so,
                                      on_nonconvergence="ignore", **opts)
         self.s0, self.s1 = self.model.state(), self.model.state()
+
+    @property
+    def positions(self) -> np.ndarray:
+        return self.s0.particle_q
 
     def advance(self, k: int) -> bool:
         """Take ``k`` more steps; False if the state became non-finite."""
@@ -279,18 +325,6 @@ class Run:
                     return False
         return True
 
-    @property
-    def step_s(self) -> float:
-        return self.wall / max(self.steps, 1)
-
-    def frame_s(self, frame_dt: float = FRAME_DT) -> float:
-        """Wall time per frame [s]."""
-        return self.step_s * frame_dt / self.h
-
-    def frame_cpu(self, frame_dt: float = FRAME_DT) -> float:
-        """CPU time (this process) per frame [s]."""
-        return self.cpu / max(self.steps, 1) * frame_dt / self.h
-
     def summary(self) -> dict:
         s = self.stats
         k = max(len(s), 1)
@@ -299,28 +333,50 @@ class Run:
                     newton_failures=sum(not x.newton_converged for x in s))
 
 
-#: Newton stage coefficient c / h of each implicit method (matrix M - c^2 dF/dq - c dF/dqd).
-STAGE_COEFFICIENT = {"linearized_implicit": 1.0, "implicit_euler": 1.0, "bdf2": 2.0 / 3.0,
-                     "tr_bdf2": 1.0 - 1.0 / math.sqrt(2.0)}
+def make_run(model, cand: Candidate, options: dict):
+    """A fresh run of ``cand`` from the initial state: :class:`Run` if implicit, else
+    :func:`benchmarks.reference_cache.explicit_run` (``verlet`` or an explicit integrator)."""
+    h = FRAME_DT / cand.steps_per_frame
+    if cand.implicit:
+        return Run(model, cand.method, h, cand.solver, options)
+    return reference_cache.explicit_run(model, cand.method, h)
 
 
-def reference_solver(choice: str, method: str, h: float, omega: float) -> str:
-    """``choice``, or for ``pick``: ``cg`` (block Jacobi) when ``c omega <= 10`` (CG needs ~``c omega``
-    iterations, fewer than an AMG setup costs), else ``auto``."""
-    if choice != "pick":
-        return choice
-    return "cg" if STAGE_COEFFICIENT.get(method, 1.0) * h * omega <= 10.0 else "auto"
-
-
-def _steps(window: float, h: float) -> int:
-    return max(1, int(round(window / h)))
+def per_frame(run, seconds: float, frame_dt: float = FRAME_DT) -> float:
+    """``seconds`` spent over ``run.steps`` steps, per frame of ``frame_dt``."""
+    return seconds / max(run.steps, 1) * frame_dt / run.h
 
 
 def rms(a: np.ndarray, b: np.ndarray) -> float:
     """RMS over particles of ``|a - b|`` [m] (inf if not finite)."""
-    with np.errstate(over="ignore", invalid="ignore"):
-        e = float(np.sqrt(np.mean(np.sum((a - b) ** 2, axis=-1))))
-    return e if np.isfinite(e) else float("inf")
+    return float(reference_cache.frame_rms(a, b))
+
+
+def track_errors(run, steps_per_frame: int, ref_q: np.ndarray, *, stop_above: float = 0.0) -> dict:
+    """Advance ``run`` frame by frame over the frames of ``ref_q`` (frames + 1, N, 3), error at every frame.
+
+    Returns
+    -------
+    dict
+        ``errors`` (frames + 1,) [m] (NaN after the last frame run), ``frames_run``, ``finite``, ``stopped``
+        (True when the error exceeded ``stop_above`` > 0 and the run stopped there), ``err_max`` (max over
+        the frames run), ``err_frame`` (its frame), ``err_final`` (error at the last frame, NaN unless reached).
+    """
+    frames = ref_q.shape[0] - 1
+    errors = np.full(frames + 1, np.nan)
+    errors[0] = rms(run.positions, ref_q[0])
+    finite, stopped, k = True, False, 0
+    for k in range(1, frames + 1):
+        finite = run.advance(steps_per_frame)
+        errors[k] = rms(run.positions, ref_q[k]) if finite else np.inf
+        if not finite:
+            break
+        if stop_above > 0 and errors[k] > stop_above and k < frames:
+            stopped = True
+            break
+    f = int(np.nanargmax(errors))
+    return dict(errors=errors, frames_run=k, finite=finite, stopped=stopped, err_max=float(errors[f]), err_frame=f,
+                err_final=float(errors[frames]) if k == frames and finite else float("nan"))
 
 
 def _load() -> str:
@@ -330,8 +386,20 @@ def _load() -> str:
         return "n/a"
 
 
+def _floor_fields(err: float, floor: float) -> dict:
+    """The reported error: never below the reference's floor (``err_rms = floor``, ``below_floor`` True then)."""
+    below = bool(np.isfinite(err) and err < floor)
+    return dict(err_rms=floor if below else err, below_floor=below, err_raw=err)
+
+
+def _xcheck_method(model, choice: str) -> str:
+    if choice != "auto":
+        return choice
+    return "Radau" if 3 * model.free_particles.size <= 600 else "DOP853"
+
+
 def measure_size(n: int, a, log=print) -> tuple[dict, list[dict]]:
-    """All measurements at one size; returns the summary row and the candidate rows."""
+    """All measurements at one size; returns the summary row and the per-run rows."""
     from springsim.assembly import SystemAssembler
     from springsim.forces import make_force_terms
 
@@ -339,140 +407,154 @@ def measure_size(n: int, a, log=print) -> tuple[dict, list[dict]]:
     t_start = time.perf_counter()
     model = cloth(n)
     dofs = 3 * int(model.free_particles.size)
-    log(f"n={n}: {dofs} DOFs, {model.spring_count} springs, load {load_start}")
+    frames = a.frames
+    window = frames * FRAME_DT
+    log(f"n={n}: {dofs} DOFs, {model.spring_count} springs, window {frames} frames ({window:.4g} s), "
+        f"load {load_start}")
     asm = SystemAssembler(model, make_force_terms(model))
     om0 = omega_max(asm, model.particle_q, model.particle_qd)
+    S0 = explicit_substeps(om0["omega"])
     log(f"  omega_max(initial) = {om0['omega']:.6g} rad/s ({om0['steps']} Lanczos steps; Gershgorin bound "
-        f"{om0['gershgorin']:.6g}); substeps/frame {explicit_substeps(om0['omega'])}")
-
-    window = a.window
-    budget_end = t_start + a.budget
-    cand_opts = dict(newton_maxiter=a.newton_maxiter, solver_options={"rtol": a.linear_rtol})
-    ref_opts = dict(newton_maxiter=max(a.newton_maxiter, 20), newton_tol=a.ref_newton_tol,
-                    solver_options={"rtol": a.ref_rtol})
+        f"{om0['gershgorin']:.6g}); explicit substeps/frame {S0}")
     rows: list[dict] = []
-    refs: dict[str, list] = {}  # method -> [(h_ref, final q)]
+    cache = None if a.no_cache else a.cache_dir
+    case = f"accuracy_cloth{n}"
 
-    def reference(method: str, h_need: float):
-        """Final positions of the cached reference with h_ref <= h_need (finest), or a new one at h_need."""
-        have = [r for r in refs.get(method, []) if r[0] <= h_need * (1 + 1e-9)]
-        if have:
-            return min(have, key=lambda r: r[0])
-        if a.ref_h is not None and a.ref_h <= h_need:  # one finer reference serving several candidates
-            h_need = a.ref_h
-        steps = _steps(window, h_need)
-        h_ref = window / steps
-        solver = reference_solver(a.ref_solver, method, h_ref, om0["omega"])
-        run = Run(model, method, h_ref, solver, ref_opts)
-        ok = run.advance(min(a.probe_steps, steps))
-        est = run.step_s * (steps - run.steps)
-        row = dict(n=n, role="reference", config=f"{method} h={h_ref:.4g} {solver}", method=method,
-                   solver=solver, h=h_ref, probe_frame_s=run.frame_s(), probe_cpu_frame_s=run.frame_cpu())
-        if ok and time.perf_counter() + est > budget_end:
-            rows.append({**row, "steps": run.steps, "wall_s": run.wall,
-                         "status": f"skipped: estimated {est:.0f} s over the budget"})
-            log(f"  reference {row['config']}: skipped (estimated {est:.0f} s, over budget)")
-            return None
-        ok = ok and run.advance(steps - run.steps)
-        rows.append({**row, "steps": run.steps, "wall_s": run.wall, "wall_per_frame_s": run.frame_s(),
-                     "cpu_per_frame_s": run.frame_cpu(), **run.summary(), "status": "ok" if ok else "blew up"})
-        log(f"  reference {row['config']}: {run.steps} steps in {run.wall:.1f} s, {run.summary()}")
-        if not ok:
-            return None
-        refs.setdefault(method, []).append((h_ref, run.s0.particle_q.copy()))
-        del run
-        gc.collect()
-        return refs[method][-1]
+    # 1. the reference and its floor
+    base = a.ref_substeps or a.ref_base * S0
+    ref = reference_cache.refined_reference(model, base, a.ref_levels, frames, case=case, method=a.ref_method,
+                                            cache_dir=cache, log=log)
+    diffs, med = ref.diffs, ref.median_ratios
+    for k, S in enumerate(ref.substeps):
+        rows.append(dict(n=n, role="reference", config=f"{a.ref_method} {S} substeps/frame", method=a.ref_method,
+                         solver="none", h=FRAME_DT / S, steps_per_frame=S, steps=S * frames, frames_run=frames,
+                         cpu_s=ref.cpu_s[k], wall_s=ref.wall_s[k], cpu_per_frame_s=ref.cpu_s[k] / frames,
+                         wall_per_frame_s=ref.wall_s[k] / frames,
+                         diff_to_next=diffs[k] if k < len(diffs) else "",
+                         status=("cached" if ref.cached[k] else "computed") + ("" if ref.finite else ", not finite")))
+    log(f"  reference differences between levels (max over frames): {' '.join(f'{d:.3g}' for d in diffs)} m; "
+        f"ratios of the maxima {' '.join(f'{r:.2f}' for r in ref.ratios)}; median ratios over frames "
+        f"{' '.join(f'{r:.2f}' for r in med)}")
+    xmethod, xdiff = "", float("nan")
+    if n <= a.cross_check_max_n:
+        xmethod = _xcheck_method(model, a.cross_check_method)
+        x = reference_cache.cached_frames(model, xmethod, 0, frames, case=case, cache_dir=cache)
+        xdiff = float(np.max(reference_cache.frame_rms(x["q"], ref.q))) if x["finite"] else float("inf")
+        rows.append(dict(n=n, role="cross-check", config=f"solve_ivp {xmethod} rtol 1e-10", method=xmethod,
+                         solver="none", frames_run=frames, cpu_s=x["cpu_s"], wall_s=x["wall_s"],
+                         cpu_per_frame_s=x["cpu_s"] / frames, wall_per_frame_s=x["wall_s"] / frames,
+                         err_raw=xdiff, status="cached" if x["cached"] else "computed"))
+        how = "cached" if x["cached"] else "%.1f CPU s" % x["cpu_s"]
+        log(f"  cross-check: solve_ivp {xmethod} vs the finest reference level: {xdiff:.3g} m (max over frames), "
+            f"{how}")
+        del x
+    floor = ref.floor if np.isnan(xdiff) else max(ref.floor, xdiff)
+    usable = bool(ref.finite and floor < a.target)
+    log(f"  reference floor {floor:.3g} m ({'usable' if usable else 'NOT usable'} for a {a.target:g} m target)")
+    summary = dict(n=n, dofs=dofs, frames=frames, window_s=window, target=a.target, ref_method=a.ref_method,
+                   ref_substeps=ref.substeps[-1], ref_h=FRAME_DT / ref.substeps[-1],
+                   ref_diffs=" ".join(f"{d:.3g}" for d in diffs), ref_median_ratios=" ".join(f"{r:.3g}" for r in med),
+                   ref_pair_diff=ref.floor, xcheck_method=xmethod, xcheck_diff=xdiff if xmethod else "", floor=floor,
+                   ref_usable=usable, ref_cpu_s=sum(ref.cpu_s), omega_initial=om0["omega"],
+                   omega_gershgorin=om0["gershgorin"], lanczos_steps=om0["steps"], load_start=load_start)
 
-    # probe every candidate (a throw-away run, so only one integrator, AMG hierarchy included, is alive)
+    def error_row(run, res, row):
+        r = {**row, "steps": run.steps, "frames_run": res["frames_run"], "wall_s": run.wall, "cpu_s": run.cpu,
+             "wall_per_frame_s": per_frame(run, run.wall), "cpu_per_frame_s": per_frame(run, run.cpu),
+             **_floor_fields(res["err_max"], floor), "err_lower_bound": res["stopped"], "err_frame": res["err_frame"],
+             "err_final": res["err_final"], "floor": floor, **run.summary()}
+        if not res["finite"]:
+            r["status"] = f"blew up at frame {res['frames_run']}"
+        elif res["stopped"]:
+            r["status"] = f"stopped at frame {res['frames_run']}: error above {a.stop_above:g} m"
+        else:
+            r["status"] = "within target" if r["err_rms"] < a.target else "above target"
+        return r
+
+    # 2. the explicit limit, verified, and symplectic Euler over the window
+    omd = omega_max(asm, ref.q[-1], np.zeros_like(ref.q[-1])) if ref.finite else None
+    if omd is not None:
+        log(f"  omega_max(reference at frame {frames}) = {omd['omega']:.6g} rad/s ({omd['steps']} Lanczos steps)")
+    om = max(om0["omega"], omd["omega"] if omd else 0.0)
+    ex = verify_explicit(model, om, window=a.explicit_window, max_steps=a.explicit_max_steps, lower=a.lower)
+    se_cand = Candidate("symplectic_euler", ex["substeps"] / FRAME_DT, "none")
+    se_run = make_run(model, se_cand, {})
+    se = track_errors(se_run, ex["substeps"], ref.q)
+    se_row = error_row(se_run, se, dict(n=n, role="explicit", config=se_cand.label, method=se_cand.method,
+                                        solver="none", h=se_run.h, steps_per_frame=ex["substeps"]))
+    rows.append(se_row)
+    log(f"  symplectic Euler: {ex['substeps']} substeps/frame (computed {ex['substeps_computed']}), stable over "
+        f"{ex['window_s']:.3g} s from a perturbed start: {ex['stable']}; {ex['lower_substeps']} substeps: "
+        f"{'unstable at t=%.3g s' % ex['lower_detected_at_s'] if ex['lower_unstable'] else 'stable'}; over the window: "
+        f"error {se['err_max']:.3g} m (frame {se['err_frame']}), {se_row['cpu_per_frame_s']:.3g} CPU s/frame, "
+        f"{se_row['wall_per_frame_s']:.3g} wall")
+    summary.update(se_substeps=ex["substeps"], se_h=ex["h"], se_err_rms=se_row["err_rms"],
+                   se_below_floor=se_row["below_floor"], se_err_frame=se_row["err_frame"],
+                   se_wall_per_frame_s=se_row["wall_per_frame_s"], se_cpu_per_frame_s=se_row["cpu_per_frame_s"],
+                   se_window_finite=se["finite"], se_stable=ex["stable"], se_window_s=ex["window_s"],
+                   se_lower_substeps=ex["lower_substeps"], se_lower_unstable=ex["lower_unstable"],
+                   se_lower_detected_at_s=ex["lower_detected_at_s"], omega_max=om,
+                   omega_deformed=omd["omega"] if omd else float("nan"), substeps_computed=ex["substeps_computed"])
+    del se_run
+    gc.collect()
+
+    # 3. candidates: probe, then run in order of the probe's cost
+    cand_opts = dict(newton_maxiter=a.newton_maxiter, solver_options={"rtol": a.linear_rtol})
+    budget_end = t_start + a.budget
     probes = []
     for c in a.candidates:
-        steps = _steps(window, c.h)
-        run = Run(model, c.method, window / steps, c.solver, cand_opts)
-        ok = run.advance(min(a.probe_steps, steps))
-        probes.append((c, steps, ok, run.step_s, run.frame_s(), run.frame_cpu()))
-        log(f"  probe {c.label}: {run.step_s:.3g} s/step -> ~{run.frame_s():.3g} s/frame wall, "
-            f"{run.frame_cpu():.3g} s/frame CPU{'' if ok else ' (blew up)'}")
+        run = make_run(model, c, cand_opts)
+        ok = run.advance(min(a.probe_steps, c.steps_per_frame * frames))
+        probes.append((c, ok, run.wall / max(run.steps, 1), per_frame(run, run.wall), per_frame(run, run.cpu)))
+        log(f"  probe {c.label}: ~{probes[-1][3]:.3g} s/frame wall, {probes[-1][4]:.3g} CPU{'' if ok else ' (blew up)'}")
         del run
         gc.collect()
-    probes.sort(key=lambda x: (not x[2], x[5]))
+    probes.sort(key=lambda p: (not p[1], p[4]))
     best = None
-    for c, steps, ok, probe_step_s, probe_frame_s, probe_cpu in probes:
-        row = dict(n=n, role="candidate", config=c.label, method=c.method, solver=c.solver, h=window / steps,
-                   probe_frame_s=probe_frame_s, probe_cpu_frame_s=probe_cpu)
+    for c, ok, step_s, probe_frame_s, probe_cpu in probes:
+        row = dict(n=n, role="candidate", config=c.label, method=c.method, solver=c.solver, h=FRAME_DT / c.steps_per_frame,
+                   steps_per_frame=c.steps_per_frame, probe_frame_s=probe_frame_s, probe_cpu_frame_s=probe_cpu,
+                   floor=floor)
         if not ok:
             rows.append({**row, "status": "blew up in the probe"})
             continue
-        if best is not None and probe_cpu >= best["cpu_per_frame_s"]:
-            rows.append({**row, "status": "not run: probe slower than the cheapest passing"})
+        if not a.measure_all and best is not None and probe_cpu >= best["cpu_per_frame_s"]:
+            rows.append({**row, "status": "not run: probe dearer than the cheapest within target"})
             continue
-        est = probe_step_s * steps
+        est = step_s * c.steps_per_frame * frames
         if time.perf_counter() + est > budget_end:
             rows.append({**row, "status": f"skipped: estimated {est:.0f} s over the budget"})
             log(f"  {c.label}: skipped (estimated {est:.0f} s, over budget)")
             continue
-        run = Run(model, c.method, window / steps, c.solver, cand_opts)  # the measured run, from t = 0
-        ok = run.advance(steps)
-        r = {**row, "steps": run.steps, "wall_s": run.wall, "wall_per_frame_s": run.frame_s(),
-             "cpu_per_frame_s": run.frame_cpu(), **run.summary()}
-        if not ok:
-            rows.append({**r, "status": "blew up"})
-            continue
-        ref = reference(c.method, run.h / a.ref_ratio)
-        if ref is None:
-            rows.append({**r, "status": "no reference (budget or blow-up)"})
-            continue
-        r.update(err_rms=rms(run.s0.particle_q, ref[1]), ref_h=ref[0])
-        r["status"] = "ok, below target" if r["err_rms"] < a.target else "ok, above target"
+        run = make_run(model, c, cand_opts)
+        res = track_errors(run, c.steps_per_frame, ref.q, stop_above=a.stop_above)
+        r = error_row(run, res, row)
         rows.append(r)
+        log(f"  {c.label}: error {'>= ' if res['stopped'] else ''}{res['err_max']:.3g} m (frame {res['err_frame']}"
+            f"{', stopped' if res['stopped'] else ''}), {r['cpu_per_frame_s']:.3g} CPU s/frame, "
+            f"{r['wall_per_frame_s']:.3g} wall; {r.get('newton_per_step', float('nan')):.3g} Newton/step, "
+            f"{r.get('newton_failures', 0)} failures")
         del run
         gc.collect()
-        log(f"  {c.label}: err {r['err_rms']:.3g} m, {r['wall_per_frame_s']:.3g} s/frame wall, "
-            f"{r['cpu_per_frame_s']:.3g} CPU, Newton/step {r['newton_per_step']:.2f}, failures {r['newton_failures']}")
-        if r["err_rms"] < a.target and (best is None or r["cpu_per_frame_s"] < best["cpu_per_frame_s"]):
+        if (usable and r["status"] == "within target"
+                and (best is None or r["cpu_per_frame_s"] < best["cpu_per_frame_s"])):
             best = r
 
-    # deformed state: end of the finest reference (the cloth after the window)
-    finest = min((x for v in refs.values() for x in v), key=lambda x: x[0], default=None)
-    omd = omega_max(asm, finest[1], np.zeros_like(finest[1])) if finest is not None else None
-    if omd is not None:
-        log(f"  omega_max(deformed, t={window:g} s) = {omd['omega']:.6g} rad/s ({omd['steps']} Lanczos steps)")
-    om = max(om0["omega"], omd["omega"] if omd else 0.0)
-    ex = verify_explicit(model, om, window=a.explicit_window, max_steps=a.explicit_max_steps, lower=a.lower)
-    log(f"  symplectic Euler: {ex['substeps']} substeps/frame (computed {ex['substeps_computed']}), stable over "
-        f"{ex['window_s']:.3g} s: {ex['stable']}; {ex['lower_substeps']} substeps: "
-        f"{'unstable at t=%.3g s' % ex['lower_detected_at_s'] if ex['lower_unstable'] else 'stable'}; "
-        f"{ex['wall_per_frame_s']:.3g} s/frame wall, {ex['cpu_per_frame_s']:.3g} CPU")
-    summary = dict(n=n, dofs=dofs, window_s=window, se_substeps=ex["substeps"], se_h=ex["h"],
-                   se_wall_per_frame_s=ex["wall_per_frame_s"], se_cpu_per_frame_s=ex["cpu_per_frame_s"],
-                   se_wall_per_substep_s=ex["wall_per_substep_s"],
-                   se_stable=ex["stable"], se_window_s=ex["window_s"], se_lower_substeps=ex["lower_substeps"],
-                   se_lower_unstable=ex["lower_unstable"], se_lower_detected_at_s=ex["lower_detected_at_s"],
-                   omega_max=om, omega_initial=om0["omega"], omega_deformed=omd["omega"] if omd else float("nan"),
-                   omega_gershgorin=om0["gershgorin"], lanczos_steps=om0["steps"],
-                   substeps_computed=ex["substeps_computed"], load_start=load_start, load_end=_load())
-    if best is not None:
-        summary.update({k: best[k] for k in ("config", "method", "solver", "h", "err_rms", "ref_h",
-                                             "wall_per_frame_s", "cpu_per_frame_s", "newton_per_step",
-                                             "linear_per_step",
-                                             "newton_failures")},
-                       steps_per_frame=FRAME_DT / best["h"], status="ok")
+    summary["load_end"] = _load()
+    if not usable:
+        summary.update(config="undecided", status=f"reference floor {floor:.3g} m not below the target")
+    elif best is not None:
+        summary.update({k: best.get(k, "") for k in ("config", "method", "solver", "h", "steps_per_frame", "err_rms",
+                                                     "below_floor", "err_frame", "wall_per_frame_s", "cpu_per_frame_s",
+                                                     "newton_per_step", "linear_per_step", "newton_failures")},
+                       cpu_ratio_to_se=best["cpu_per_frame_s"] / se_row["cpu_per_frame_s"], status="ok")
     else:
         measured = [r for r in rows if r["role"] == "candidate" and "err_rms" in r]
         closest = min(measured, key=lambda r: r["err_rms"], default=None)
-        if closest is not None:
-            summary.update(config="none below target", status=f"no candidate below the target (smallest error "
-                                                               f"{closest['err_rms']:.3g} m: {closest['config']})")
-        else:  # nothing fit the budget: report the cheapest probe, error not measured
-            p0 = next((x for x in probes if x[2]), None)
-            summary.update(config="none measured", status="no candidate fit the budget")
-            if p0 is not None:
-                c = p0[0]
-                summary.update(config=f"probe only: {c.label}", method=c.method, solver=c.solver,
-                               h=window / p0[1], steps_per_frame=FRAME_DT * p0[1] / window,
-                               wall_per_frame_s=p0[4], cpu_per_frame_s=p0[5],
-                               status=f"error not measured (budget); cost from a {min(a.probe_steps, p0[1])}-step "
-                                      f"probe")
+        summary.update(config="none within target",
+                       status=("no candidate measured" if closest is None else
+                               f"no candidate within the target (smallest error {closest['err_rms']:.3g} m"
+                               f"{' or more' if closest['err_lower_bound'] else ''}: {closest['config']})"))
     return summary, rows
 
 
@@ -492,50 +574,93 @@ def _read_csv(path) -> list[dict]:
         return [{k: parse(v) for k, v in r.items() if v != ""} for r in csv.DictReader(fh)]
 
 
+def _err_text(r: dict, key: str = "err_rms", below: str = "below_floor", lower: str = "err_lower_bound") -> str:
+    """An error for the tables: ``< floor`` when below the reference's floor, ``> x`` when the run stopped."""
+    v = r.get(key, "")
+    if v == "":
+        return ""
+    if str(r.get(below, "")) == "True":
+        return f"< {fmt(float(v))} (floor)"
+    if str(r.get(lower, "")) == "True":
+        return f"> {fmt(float(v))}"
+    return fmt(float(v))
+
+
+def markdown(summaries: list[dict], rows: list[dict], target: float) -> str:
+    """The summary and per-run tables of ``results/frame_cost.md``."""
+    s_rows = [{**r, "err": _err_text(r), "se_err": _err_text(r, "se_err_rms", "se_below_floor", "-")}
+              for r in summaries]
+    c_rows = [{**r, "err": _err_text(r)} for r in rows]
+    s_cols = ["n", "dofs", "frames", "floor", "config", "err", "cpu_per_frame_s", "wall_per_frame_s", "se_substeps",
+              "se_err", "se_cpu_per_frame_s", "se_wall_per_frame_s", "cpu_ratio_to_se", "load_start", "load_end"]
+    c_cols = ["n", "role", "config", "frames_run", "err", "err_frame", "err_final", "err_raw", "diff_to_next",
+              "cpu_per_frame_s", "wall_per_frame_s", "probe_cpu_frame_s", "newton_per_step", "linear_per_step",
+              "newton_failures", "status"]
+    return (f"## Time per 1/60 s frame within {target:g} m RMS of the validated reference\n\n"
+            f"error = RMS over particles, max over every frame of the window\n\n"
+            + markdown_table(s_rows, s_cols) + "\n\n### Every run\n\n" + markdown_table(c_rows, c_cols) + "\n")
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--sizes", type=int, nargs="*", default=None, help="cloth sizes n (default 128 256 512)")
+    p.add_argument("--sizes", type=int, nargs="*", default=None, help="cloth sizes n (default 32 64)")
     p.add_argument("--candidates", type=parse_candidate, nargs="*", default=None,
-                   help="implicit configurations method:1/h:solver (default: %s)" % " ".join(DEFAULT_CANDIDATES))
-    p.add_argument("--window", type=float, default=0.25, help="simulated window T_w [s] (default 0.25)")
+                   help="configurations method:1/h:solver (default: %s)" % " ".join(DEFAULT_CANDIDATES))
+    p.add_argument("--frames", type=int, default=DEFAULT_FRAMES,
+                   help=f"window: frames of 1/60 s from the release (default {DEFAULT_FRAMES})")
     p.add_argument("--target", type=float, default=0.01, help="RMS error target [m] (default 0.01)")
-    p.add_argument("--ref-ratio", type=float, default=8.0, help="reference step = candidate step / this (default 8)")
-    p.add_argument("--ref-h", type=float, default=None,
-                   help="reference step [s] when it is at most candidate step / ratio (one reference then serves "
-                        "several candidates; default: candidate step / ratio)")
-    p.add_argument("--ref-solver", default="pick",
-                   help="linear solver of the references (default pick: cg if c*omega_max <= 10, else auto)")
-    p.add_argument("--ref-rtol", type=float, default=1e-10, help="linear rtol of the references")
-    p.add_argument("--ref-newton-tol", type=float, default=1e-7, help="Newton tolerance of the references [m/s]")
+    p.add_argument("--ref-method", default="verlet", choices=("verlet", "symplectic_euler"),
+                   help="explicit method of the reference ladder (default verlet)")
+    p.add_argument("--ref-base", type=int, default=2,
+                   help="coarsest reference level = this times the explicit substeps/frame (default 2)")
+    p.add_argument("--ref-substeps", type=int, default=None, help="coarsest reference level [substeps/frame] "
+                                                                  "(overrides --ref-base)")
+    p.add_argument("--ref-levels", type=int, default=3, help="reference levels, each halving the step (default 3)")
+    p.add_argument("--cross-check-max-n", type=int, default=64,
+                   help="cross-check the reference with solve_ivp at sizes up to this (default 64; 0: never)")
+    p.add_argument("--cross-check-method", default="auto",
+                   choices=("auto",) + reference_cache.SOLVE_IVP_METHODS,
+                   help="solve_ivp method of the cross-check (default auto: Radau up to 600 DOFs, DOP853 above)")
+    p.add_argument("--cache-dir", type=Path, default=reference_cache.CACHE_DIR,
+                   help="where references are cached (default results/frame_ref)")
+    p.add_argument("--no-cache", action="store_true", help="neither read nor write cached references")
+    p.add_argument("--stop-above", type=float, default=0.05,
+                   help="stop a candidate once its error exceeds this [m] (default 0.05; 0: never)")
+    p.add_argument("--measure-all", action="store_true",
+                   help="run every candidate, also those dearer than the cheapest within target")
     p.add_argument("--linear-rtol", type=float, default=1e-6, help="linear rtol of the candidates")
-    p.add_argument("--newton-maxiter", type=int, default=20, help="Newton iteration limit of the candidates")
+    p.add_argument("--newton-maxiter", type=int, default=None,
+                   help="Newton iteration limit of the candidates (default: the integrator's, at least 20)")
     p.add_argument("--probe-steps", type=int, default=2, help="steps of each candidate's cost probe")
-    p.add_argument("--budget", type=float, default=1800.0, help="wall-time budget per size for the implicit part [s]")
+    p.add_argument("--budget", type=float, default=1800.0, help="wall-time budget per size [s]")
     p.add_argument("--explicit-window", type=float, default=0.1, help="symplectic Euler verification window [s]")
     p.add_argument("--explicit-max-steps", type=int, default=2000, help="cap on verification substeps")
     p.add_argument("--lower", type=float, default=0.7, help="fraction of the substep count that must fail")
     p.add_argument("--append", action="store_true",
                    help="keep the rows of other sizes already in the output CSVs (a size run again is replaced)")
-    p.add_argument("--quick", action="store_true", help="n = 6, short window, three candidates (tests)")
+    p.add_argument("--quick", action="store_true", help="n = 6, three candidates (tests)")
     p.add_argument("--out", type=Path, default=RESULTS_DIR)
     a = p.parse_args(argv)
-    for name in ("window", "target", "ref_ratio", "budget", "explicit_window", "ref_h"):
-        if name == "ref_h" and a.ref_h is None:
-            continue
+    for name in ("target", "budget", "explicit_window"):
         if not getattr(a, name) > 0:
             p.error(f"--{name.replace('_', '-')} must be > 0, got {getattr(a, name)}")
+    for name in ("frames", "ref_base", "probe_steps"):
+        if not getattr(a, name) >= 1:
+            p.error(f"--{name.replace('_', '-')} must be >= 1, got {getattr(a, name)}")
+    if a.ref_levels < 2:
+        p.error(f"--ref-levels must be >= 2, got {a.ref_levels}")
+    if a.ref_substeps is not None and a.ref_substeps < 1:
+        p.error(f"--ref-substeps must be >= 1, got {a.ref_substeps}")
+    if not a.stop_above >= 0:
+        p.error(f"--stop-above must be >= 0, got {a.stop_above}")
     if not 0 < a.lower < 1:
         p.error(f"--lower must be in (0, 1), got {a.lower}")
     if a.quick:
         a.sizes = a.sizes or [6]
-        a.window = 2 * FRAME_DT
-        a.ref_ratio = 4.0
         a.explicit_window = 0.05
-        a.candidates = a.candidates or [parse_candidate(x) for x in
-                                        ("linearized_implicit:60:direct", "tr_bdf2:60:direct", "tr_bdf2:120:direct")]
-        a.ref_solver = "direct"
-    sizes = a.sizes or [128, 256, 512]
-    a.candidates = a.candidates or [parse_candidate(x) for x in DEFAULT_CANDIDATES]
+        a.candidates = a.candidates or [parse_candidate(x) for x in QUICK_CANDIDATES]
+    sizes = a.sizes or [32, 64]
+    a.candidates = [parse_candidate(x) for x in DEFAULT_CANDIDATES] if a.candidates is None else a.candidates
     a.out.mkdir(parents=True, exist_ok=True)
     info = machine_info()
     print(f"machine: {info}; threads: OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS', 'unset')}, "
@@ -550,12 +675,7 @@ def main(argv=None) -> int:
         cand_rows = sorted(cand_rows + rows, key=lambda r: r["n"])
         write_csv(a.out / "frame_cost.csv", summaries, COLUMNS)  # a long run keeps its finished sizes
         write_csv(a.out / "frame_cost_candidates.csv", cand_rows, CANDIDATE_COLUMNS)
-    table_cols = ["n", "dofs", "config", "h", "err_rms", "wall_per_frame_s", "cpu_per_frame_s", "se_substeps",
-                  "se_wall_per_frame_s", "se_cpu_per_frame_s", "se_stable", "se_lower_substeps", "se_lower_unstable",
-                  "load_start", "load_end"]
-    md = (f"## Time per 1/60 s frame at {a.target:g} m RMS\n\nwindow {a.window:g} s, reference step = "
-          f"h / {a.ref_ratio:g}\n\n" + markdown_table(summaries, table_cols) + "\n\n### Candidates\n\n"
-          + markdown_table(cand_rows, CANDIDATE_COLUMNS) + "\n")
+    md = markdown(summaries, cand_rows, a.target)
     (a.out / "frame_cost.md").write_text(md)
     print(md)
     return 0

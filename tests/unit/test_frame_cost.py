@@ -1,4 +1,5 @@
-"""benchmarks/frame_cost.py at a tiny size: it runs, writes its columns, and the explicit limit is verified."""
+"""benchmarks/frame_cost.py at a tiny size: it runs and writes its columns, errors are against a converged
+reference of the ODE (not the method itself), and the explicit limit is verified."""
 
 from __future__ import annotations
 
@@ -26,23 +27,110 @@ def _read(path):
 
 
 def test_quick_run_writes_columns_and_verifies_the_limit(fc, tmp_path):
-    assert fc.main(["--quick", "--out", str(tmp_path)]) == 0
+    assert fc.main(["--quick", "--out", str(tmp_path), "--cache-dir", str(tmp_path / "ref")]) == 0
     rows, cols = _read(tmp_path / "frame_cost.csv")
     assert cols == fc.COLUMNS and len(rows) == 1
     r = rows[0]
-    assert int(r["n"]) == 6 and int(r["dofs"]) == 3 * 6 * 5
-    assert r["status"] == "ok" and float(r["err_rms"]) < 0.01 and float(r["wall_per_frame_s"]) > 0
+    assert int(r["n"]) == 6 and int(r["dofs"]) == 3 * 6 * 5 and int(r["frames"]) == fc.DEFAULT_FRAMES
+    assert r["status"] == "ok" and r["ref_usable"] == "True"
+    assert float(r["floor"]) < float(r["err_rms"]) < 0.01 and float(r["cpu_per_frame_s"]) > 0
+    assert float(r["floor"]) == max(float(r["ref_pair_diff"]), float(r["xcheck_diff"]))
+    assert float(r["se_err_rms"]) < 0.01 and float(r["se_cpu_per_frame_s"]) > 0 and r["se_window_finite"] == "True"
     # the explicit count is the one computed from omega, verified stable; 0.7x of it is not
     S = int(r["se_substeps"])
     assert S == int(r["substeps_computed"]) == fc.explicit_substeps(float(r["omega_max"]))
     assert r["se_stable"] == "True" and r["se_lower_unstable"] == "True"
     assert int(r["se_lower_substeps"]) == math.floor(0.7 * S) < S
     assert float(r["omega_max"]) <= float(r["omega_gershgorin"]) * (1 + 1e-12)
+    # the reference: Verlet at 2S, 4S, 8S substeps per frame, each refinement ~4x closer (second order)
+    assert int(r["ref_substeps"]) == 8 * S and r["ref_method"] == "verlet"
     cand, ccols = _read(tmp_path / "frame_cost_candidates.csv")
     assert ccols == fc.CANDIDATE_COLUMNS
-    assert {c["role"] for c in cand} == {"candidate", "reference"}
-    assert any(c["status"] == "ok, below target" for c in cand)
-    assert "| n | dofs | config |" in (tmp_path / "frame_cost.md").read_text()
+    assert {c["role"] for c in cand} == {"reference", "cross-check", "explicit", "candidate"}
+    diffs = [float(c["diff_to_next"]) for c in cand if c["role"] == "reference" and c["diff_to_next"]]
+    assert len(diffs) == 2 and diffs[1] < diffs[0] / 3
+    assert [float(x) for x in r["ref_median_ratios"].split()] == pytest.approx([4.0], rel=0.1)
+    measured = [c for c in cand if c["role"] == "candidate" and c["err_rms"]]
+    assert any(c["status"] == "within target" for c in measured)
+    assert any(c["status"] != "within target" for c in measured)
+    for c in measured:  # the error is the max over the frames run; a stopped run's is a lower bound
+        assert float(c["err_rms"]) >= float(c["floor"])
+        assert (c["err_lower_bound"] == "True") == c["status"].startswith("stopped")
+    assert "| n | dofs | frames | floor | config |" in (tmp_path / "frame_cost.md").read_text()
+    # a rerun loads every reference from the cache and measures the same errors
+    assert fc.main(["--quick", "--out", str(tmp_path / "again"), "--cache-dir", str(tmp_path / "ref")]) == 0
+    again, _ = _read(tmp_path / "again" / "frame_cost_candidates.csv")
+    assert [c["status"] for c in again if c["role"] in ("reference", "cross-check")] == ["cached"] * 4
+    assert ({c["config"]: c["err_raw"] for c in again if c["role"] != "reference"}
+            == {c["config"]: c["err_raw"] for c in cand if c["role"] != "reference"})
+
+
+def test_candidate_equal_to_the_reference_has_no_error(fc, tmp_path):
+    """Errors are against the reference at every frame: the reference's own configuration measures 0 (reported as
+    below the floor), another explicit method at the same step does not."""
+    out = tmp_path / "out"
+    assert fc.main(["--quick", "--out", str(out), "--no-cache", "--cross-check-max-n", "0", "--ref-substeps", "10",
+                    "--ref-levels", "2", "--measure-all", "--candidates", "verlet:1200:none",
+                    "symplectic_euler:1200:none"]) == 0
+    rows, _ = _read(out / "frame_cost_candidates.csv")
+    floor = float(next(r for r in rows if r["role"] == "reference")["diff_to_next"])
+    same = next(r for r in rows if r["config"] == "verlet h=1/1200")
+    assert float(same["err_raw"]) == 0.0 and same["below_floor"] == "True" and float(same["err_rms"]) == floor
+    se = next(r for r in rows if r["config"] == "symplectic_euler h=1/1200")
+    assert 0.0 < float(se["err_raw"]) < 0.01
+    summary, _ = _read(out / "frame_cost.csv")
+    assert summary[0]["status"] == "ok" and summary[0]["config"] in (same["config"], se["config"])
+
+
+def test_error_is_against_the_reference_not_the_method_itself(fc):
+    """Linearized implicit Euler at 1/60 s on the 6 x 6 cloth: its error against the validated reference is larger
+    than against itself at an 8x smaller step, and far larger than that self-referenced error at 0.25 s."""
+    from benchmarks import reference_cache as rc
+
+    model = fc.cloth(6)
+    ref = rc.refined_reference(model, 10, 3, fc.DEFAULT_FRAMES, case="test", cache_dir=None)
+    assert ref.finite and ref.shrinking and ref.floor < 1e-3
+
+    def frames_of(hinv):
+        c = fc.parse_candidate(f"linearized_implicit:{hinv}:direct")
+        run = fc.make_run(model, c, {})
+        q = [run.positions.copy()]
+        for _ in range(fc.DEFAULT_FRAMES):
+            assert run.advance(c.steps_per_frame)
+            q.append(run.positions.copy())
+        return np.array(q)
+
+    coarse, fine = frames_of(60), frames_of(480)
+    true = rc.frame_rms(coarse, ref.q)
+    self_ref = rc.frame_rms(coarse, fine)
+    assert true.max() > 1.1 * self_ref.max() > 0.1  # first order: the self-referenced error is ~7/8 of the true one
+    assert true.max() > 5 * self_ref[15]  # the former protocol: at 0.25 s (15 frames) only, against itself
+    res = fc.track_errors(fc.make_run(model, fc.parse_candidate("linearized_implicit:60:direct"), {}), 1, ref.q)
+    assert res["err_max"] == true.max() and res["err_frame"] == int(np.argmax(true)) and not res["stopped"]
+    stopped = fc.track_errors(fc.make_run(model, fc.parse_candidate("linearized_implicit:60:direct"), {}), 1, ref.q,
+                              stop_above=0.05)
+    assert stopped["stopped"] and stopped["err_max"] > 0.05 and stopped["frames_run"] < fc.DEFAULT_FRAMES
+    assert np.all(true[:stopped["frames_run"]] <= 0.05)
+
+
+def test_reference_converges_and_agrees_with_solve_ivp(fc, tmp_path):
+    """Verlet levels converge at second order before the buckling; the finest agrees with Radau within the floor;
+    the cache is keyed by the model's fingerprint."""
+    from benchmarks import reference_cache as rc
+
+    model = fc.cloth(6)
+    frames = 20
+    ref = rc.refined_reference(model, 10, 4, frames, case="c6", cache_dir=tmp_path)
+    assert ref.shrinking and all(3.5 < x < 4.5 for x in ref.ratios) and not any(ref.cached)
+    radau = rc.cached_frames(model, "Radau", 0, frames, case="c6", cache_dir=tmp_path)
+    assert float(np.max(rc.frame_rms(radau["q"], ref.q))) < ref.floor
+    again = rc.refined_reference(model, 10, 4, frames, case="c6", cache_dir=tmp_path)
+    assert all(again.cached) and np.array_equal(again.q, ref.q) and again.diffs == ref.diffs
+    from springsim.scene import benchmark_cloth
+
+    softer = benchmark_cloth(6, stiffness=1e3, stiffness_shear=1e3, stiffness_bend=50.0)  # another fingerprint
+    other = rc.refined_reference(softer, 10, 2, frames, case="c6", cache_dir=tmp_path)
+    assert other.finite and not any(other.cached)
 
 
 def test_omega_max_matches_dense_eigenvalue(fc):
@@ -80,7 +168,7 @@ def test_symplectic_euler_limit_is_sharp(fc):
 
 
 @pytest.mark.parametrize("text", ["tr_bdf2:240", "symplectic_euler:60:auto", "tr_bdf2:-1:auto", "tr_bdf2:x:auto",
-                                  "tr_bdf2:60:nosuch"])
+                                  "tr_bdf2:60:nosuch", "tr_bdf2:90:auto", "nosuch:60:none", "verlet:60:direct"])
 def test_candidate_errors_name_the_field(fc, text):
     with pytest.raises(argparse.ArgumentTypeError, match="^--candidates: "):
         fc.parse_candidate(text)
@@ -89,3 +177,6 @@ def test_candidate_errors_name_the_field(fc, text):
 def test_parse_candidate(fc):
     c = fc.parse_candidate("tr_bdf2:240:amg-cg")
     assert (c.method, c.h, c.solver) == ("tr_bdf2", 1 / 240, "amg-cg") and c.label == "tr_bdf2 h=1/240 amg-cg"
+    assert c.implicit and c.steps_per_frame == 4
+    e = fc.parse_candidate("verlet:1200:none")
+    assert not e.implicit and e.steps_per_frame == 20 and e.label == "verlet h=1/1200"
