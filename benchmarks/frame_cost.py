@@ -4,7 +4,8 @@ Every error here is measured against a **validated reference of the ODE**, never
 itself at a smaller step. For each cloth size ``n`` (default 32 64) on the accuracy cloth
 ``accuracy_cloth(n)`` = ``benchmark_cloth(n, ke=1e3, ke_shear=1e3, ke_bend=1e2)`` (1 m, 1 kg, edge
 y = 0 pinned, released horizontal at rest, undamped), over a window of ``--frames`` frames of 1/60 s
-from the release (default 70, i.e. 1.167 s: the fall, the buckling and the folds after it):
+from the release (default 70, i.e. 1.167 s: the fall, the buckling and the folds after it); ``--ke``
+sets the structural and shear stiffness instead (``--ke 1e4`` is ``benchmark_cloth(n)`` itself):
 
 1. **Reference** (:mod:`benchmarks.reference_cache`). Velocity Verlet (second order, symplectic; only
    the force evaluation is shared with springsim's integrators) at ``S_ref``, ``2 S_ref``, ``4 S_ref``
@@ -86,7 +87,7 @@ FRAME_DT = 1.0 / 60.0
 DEFAULT_FRAMES = 70
 
 #: Columns of the summary CSV (one row per size).
-COLUMNS = ["n", "dofs", "frames", "window_s", "target", "ref_method", "ref_substeps", "ref_h", "ref_diffs",
+COLUMNS = ["n", "ke", "dofs", "frames", "window_s", "target", "ref_method", "ref_substeps", "ref_h", "ref_diffs",
            "ref_median_ratios", "ref_pair_diff", "xcheck_method", "xcheck_diff", "floor", "ref_usable", "ref_cpu_s",
            "config", "method", "solver", "h", "steps_per_frame", "err_rms", "below_floor", "err_frame",
            "wall_per_frame_s", "cpu_per_frame_s", "newton_per_step", "linear_per_step", "newton_failures",
@@ -112,11 +113,14 @@ DEFAULT_CANDIDATES = ("linearized_implicit:60:auto", "linearized_implicit:120:au
 QUICK_CANDIDATES = ("linearized_implicit:60:direct", "tr_bdf2:60:direct", "tr_bdf2:240:direct")
 
 
-def cloth(n: int):
-    """:func:`springsim.scene.gallery.accuracy_cloth`."""
-    from springsim.scene.gallery import accuracy_cloth
+def cloth(n: int, ke: float | None = None):
+    """:func:`springsim.scene.gallery.accuracy_cloth` (``ke`` None), else :func:`~springsim.scene.benchmark_cloth`
+    with structural and shear springs of ``ke`` N/m (bending 1e2 N/m as in both; ``ke = 1e4`` is the benchmark cloth)."""
+    from springsim.scene.gallery import accuracy_cloth, benchmark_cloth
 
-    return accuracy_cloth(n)
+    if ke is None:
+        return accuracy_cloth(n)
+    return benchmark_cloth(n, stiffness=ke, stiffness_shear=ke, stiffness_bend=1e2)
 
 
 # -- explicit stability limit -----------------------------------------------------------------------------------
@@ -405,7 +409,7 @@ def measure_size(n: int, a, log=print) -> tuple[dict, list[dict]]:
 
     load_start = _load()
     t_start = time.perf_counter()
-    model = cloth(n)
+    model = cloth(n, a.ke)
     dofs = 3 * int(model.free_particles.size)
     frames = a.frames
     window = frames * FRAME_DT
@@ -418,7 +422,7 @@ def measure_size(n: int, a, log=print) -> tuple[dict, list[dict]]:
         f"{om0['gershgorin']:.6g}); explicit substeps/frame {S0}")
     rows: list[dict] = []
     cache = None if a.no_cache else a.cache_dir
-    case = f"accuracy_cloth{n}"
+    case = f"accuracy_cloth{n}" if a.ke is None else f"cloth{n}_ke{a.ke:g}"
 
     # 1. the reference and its floor
     base = a.ref_substeps or a.ref_base * S0
@@ -451,7 +455,7 @@ def measure_size(n: int, a, log=print) -> tuple[dict, list[dict]]:
     floor = ref.floor if np.isnan(xdiff) else max(ref.floor, xdiff)
     usable = bool(ref.finite and floor < a.target)
     log(f"  reference floor {floor:.3g} m ({'usable' if usable else 'NOT usable'} for a {a.target:g} m target)")
-    summary = dict(n=n, dofs=dofs, frames=frames, window_s=window, target=a.target, ref_method=a.ref_method,
+    summary = dict(n=n, ke=1e3 if a.ke is None else a.ke, dofs=dofs, frames=frames, window_s=window, target=a.target, ref_method=a.ref_method,
                    ref_substeps=ref.substeps[-1], ref_h=FRAME_DT / ref.substeps[-1],
                    ref_diffs=" ".join(f"{d:.3g}" for d in diffs), ref_median_ratios=" ".join(f"{r:.3g}" for r in med),
                    ref_pair_diff=ref.floor, xcheck_method=xmethod, xcheck_diff=xdiff if xmethod else "", floor=floor,
@@ -591,7 +595,7 @@ def markdown(summaries: list[dict], rows: list[dict], target: float) -> str:
     s_rows = [{**r, "err": _err_text(r), "se_err": _err_text(r, "se_err_rms", "se_below_floor", "-")}
               for r in summaries]
     c_rows = [{**r, "err": _err_text(r)} for r in rows]
-    s_cols = ["n", "dofs", "frames", "floor", "config", "err", "cpu_per_frame_s", "wall_per_frame_s", "se_substeps",
+    s_cols = ["n", "ke", "dofs", "frames", "floor", "config", "err", "cpu_per_frame_s", "wall_per_frame_s", "se_substeps",
               "se_err", "se_cpu_per_frame_s", "se_wall_per_frame_s", "cpu_ratio_to_se", "load_start", "load_end"]
     c_cols = ["n", "role", "config", "frames_run", "err", "err_frame", "err_final", "err_raw", "diff_to_next",
               "cpu_per_frame_s", "wall_per_frame_s", "probe_cpu_frame_s", "newton_per_step", "linear_per_step",
@@ -608,6 +612,8 @@ def main(argv=None) -> int:
                    help="configurations method:1/h:solver (default: %s)" % " ".join(DEFAULT_CANDIDATES))
     p.add_argument("--frames", type=int, default=DEFAULT_FRAMES,
                    help=f"window: frames of 1/60 s from the release (default {DEFAULT_FRAMES})")
+    p.add_argument("--ke", type=float, default=None,
+                   help="structural and shear stiffness [N/m] (default: the accuracy cloth's 1e3; 1e4 is benchmark_cloth)")
     p.add_argument("--target", type=float, default=0.01, help="RMS error target [m] (default 0.01)")
     p.add_argument("--ref-method", default="verlet", choices=("verlet", "symplectic_euler"),
                    help="explicit method of the reference ladder (default verlet)")
@@ -641,6 +647,8 @@ def main(argv=None) -> int:
     p.add_argument("--quick", action="store_true", help="n = 6, three candidates (tests)")
     p.add_argument("--out", type=Path, default=RESULTS_DIR)
     a = p.parse_args(argv)
+    if a.ke is not None and not (np.isfinite(a.ke) and a.ke > 0):
+        p.error(f"--ke must be > 0, got {a.ke}")
     for name in ("target", "budget", "explicit_window"):
         if not getattr(a, name) > 0:
             p.error(f"--{name.replace('_', '-')} must be > 0, got {getattr(a, name)}")

@@ -56,7 +56,7 @@ def test_quick_run_writes_columns_and_verifies_the_limit(fc, tmp_path):
     for c in measured:  # the error is the max over the frames run; a stopped run's is a lower bound
         assert float(c["err_rms"]) >= float(c["floor"])
         assert (c["err_lower_bound"] == "True") == c["status"].startswith("stopped")
-    assert "| n | dofs | frames | floor | config |" in (tmp_path / "frame_cost.md").read_text()
+    assert "| n | ke | dofs | frames | floor | config |" in (tmp_path / "frame_cost.md").read_text()
     # a rerun loads every reference from the cache and measures the same errors
     assert fc.main(["--quick", "--out", str(tmp_path / "again"), "--cache-dir", str(tmp_path / "ref")]) == 0
     again, _ = _read(tmp_path / "again" / "frame_cost_candidates.csv")
