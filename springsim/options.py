@@ -21,10 +21,13 @@ from dataclasses import dataclass, field, fields, replace
 
 from .errors import SceneError, SceneTypeError
 
-__all__ = ["MAX_STEPS", "DEFAULT_STEPS", "SolverConfig", "option", "describe_int", "steps_for_duration"]
+__all__ = ["BACKENDS", "MAX_STEPS", "DEFAULT_STEPS", "SolverConfig", "option", "describe_int", "steps_for_duration"]
 
 #: Largest number of steps a run may ask for (a guard against overflowing step counts).
 MAX_STEPS = 10**12
+
+#: Backends of a run: ``serial`` (one process), ``petsc`` (:mod:`springsim.distributed`, under ``mpiexec``).
+BACKENDS = ("serial", "petsc")
 
 #: Run length used when neither the scene nor the caller gives one.
 DEFAULT_STEPS = 100
@@ -159,6 +162,13 @@ class SolverConfig:
     max_step: float | None = option(None, kind="float", cli="--max-step", metavar="H", lo=0.0, strict=True,
                                     help="adaptive time stepping: largest step [s] (default a tenth of the run)")
 
+    backend: str | None = option(None, kind="name", cli="--backend", metavar="NAME",
+                                 help="serial (default) or petsc: distributed assembly and solves on PETSc, run under "
+                                      "mpiexec (docs/distributed.md)")
+    petsc_options: str | None = option(None, kind="name", cli="--petsc-options", metavar="OPTS",
+                                       help="PETSc options of the petsc backend, e.g. '-ksp_type gmres "
+                                            "-pc_gamg_threshold 0.02' (PETSC_OPTIONS applies too)")
+
     def __post_init__(self):
         self.validate()
 
@@ -195,6 +205,9 @@ class SolverConfig:
                     check(value)
                 except SceneError as e:
                     raise SceneError(f"solver.{self.yaml_key(name)}", e.message) from None
+        if self.backend is not None and self.backend not in BACKENDS:
+            raise SceneError("solver.backend", f"unknown backend {self.backend!r:.60}; choose one of "
+                                               f"{', '.join(BACKENDS)}")
         if self.jacobian is not None:
             from .forces import JACOBIAN_MODES
 
@@ -319,6 +332,8 @@ class SolverConfig:
             out.append("linear_rtol")
         if self.max_step is not None and not self.adaptive:
             out.append("max_step")
+        if self.petsc_options is not None and self.backend != "petsc":
+            out.append("petsc_options")
         return sorted(set(out))
 
     def make_integrator(self, model):

@@ -239,10 +239,108 @@ def _provenance(traj, scene, cfg, scene_path) -> None:
     traj.meta["run_options"] = {k: v for k, v in dataclasses.asdict(cfg).items() if v is not None}
 
 
+def summary_rows_distributed(scene, cfg, traj) -> list[tuple[str, str]]:
+    """The rows of the run summary of a distributed run (``traj.meta`` has the backend's timings)."""
+    m = scene.model
+    s = traj.summary()
+    meta = traj.meta
+    steps = max(s["steps"], 1)
+    rows = [
+        ("scene", f"{scene.source} ({scene.name})"),
+        ("particles", f"{m.particle_count} ({m.free_count} free, {m.particle_count - m.free_count} fixed)"),
+        ("springs", str(m.spring_count)),
+        ("gravitational pairs", str(m.gravitational_count)),
+        ("dofs", str(m.dof_count)),
+        ("backend", f"petsc, {meta['ranks']} MPI rank(s)"),
+        ("integrator", cfg.integrator + (f" (PETSc KSP, jacobian {meta['jacobian']})" if meta["jacobian"] else "")),
+        ("steps", f"{s['steps']} x dt = {cfg.dt:g} s"),
+        ("simulated time", f"{traj.t[-1]:g} s"),
+        ("wall time", f"{_fmt_s(s['wall_s'])} (CPU {_fmt_s(s['cpu_s'])}, rank 0)"),
+        ("time per step", _fmt_s(s["step_s"])),
+    ]
+    tm = meta.get("timings", {})
+    if tm:
+        rows.append(("per step (rank 0)", ", ".join(f"{k[:-2]} {_fmt_s(v / steps)}" for k, v in tm.items() if v)))
+    if meta["jacobian"]:
+        rows += [
+            ("Newton iterations", f"{s['newton_iterations']:.2f} per step"),
+            ("linear iterations", f"{s['linear_iterations']:.2f} per step"),
+            ("failed steps", f"{s['failed_steps']} (Newton {s['newton_failures']}, linear solves "
+                             f"{s['linear_failures']}, ill-conditioned {s['ill_conditioned']})"),
+            ("solver retries", str(s["fallbacks"])),
+            ("max linear residual", f"{s['max_linear_residual']:.2e}"),
+        ]
+    return rows
+
+
+def _error_text(e: Exception, scene_path) -> str:
+    """The message ``springsim.cli.main`` prints for ``e`` (a scene error names the file)."""
+    from ..errors import SceneError
+
+    msg = str(e)
+    if isinstance(e, SceneError) and scene_path and not msg.startswith(str(scene_path)):
+        msg = f"{scene_path}: {msg}"
+    return " ".join(msg.split())
+
+
+def _load_agreed(args):
+    """:func:`load_and_configure` under ``mpiexec``: the ranks agree on the outcome (one message from rank 0)."""
+    from ..distributed import env_rank
+    from ..driver import check_output_path
+    from .distributed import agree
+
+    err, scene, cfg = None, None, None
+    try:
+        scene, cfg = load_and_configure(args)
+        if args.out is not None and env_rank() == 0:
+            check_output_path(args.out)
+    except (SpringsimError, OSError) as e:
+        err = _error_text(e, args.scene) if not isinstance(e, OSError) else (
+            f"{e.filename + ': ' if getattr(e, 'filename', None) else ''}{e.strerror or e}")
+    err = agree(err)
+    if err is not None:
+        if env_rank() == 0:
+            print(f"springsim: error: {err}", file=sys.stderr)
+        raise _Exit(2)
+    return scene, cfg
+
+
+def _run_petsc(args, scene, cfg) -> int:
+    """The petsc backend; a collective error is printed by rank 0 only, anything else aborts the job."""
+    from ..distributed import env_rank
+    from .distributed import abort_on_error, run_distributed
+
+    try:
+        return run_distributed(args, scene, cfg)
+    except _Exit:
+        raise
+    except SpringsimError as e:  # collective: the same on every rank
+        if env_rank() == 0:
+            print(f"springsim: error: {_error_text(e, args.scene)}", file=sys.stderr)
+        raise _Exit(2) from None
+    except Exception as e:  # one rank's own failure: end every rank now rather than leave them waiting
+        from ..distributed import env_size
+
+        if env_size() > 1:
+            abort_on_error(e)
+        raise
+
+
 def _run(args: argparse.Namespace) -> int:
+    from ..distributed import env_rank, env_size
     from ..driver import check_output_path
 
+    if env_size() > 1 or getattr(args, "backend", None) == "petsc":
+        scene, cfg = _load_agreed(args)
+        if cfg.backend == "petsc":
+            return _run_petsc(args, scene, cfg)
+        if env_rank() == 0:
+            print(f"springsim: error: {env_size()} MPI processes need --backend petsc (solver.backend: petsc)",
+                  file=sys.stderr)
+        return 2
     scene, cfg = load_and_configure(args)
+    if cfg.backend == "petsc":
+        return _run_petsc(args, scene, cfg)
     if args.out is not None:
         check_output_path(args.out)  # before the run: a run is never lost to an unwritable --out
     record = args.out is not None

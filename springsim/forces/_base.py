@@ -106,6 +106,11 @@ class ForceTerm(ABC):
 
     #: Registry and YAML name.
     name: ClassVar[str]
+    #: True for terms between pairs of particles (from the model's pair lists); False for terms acting on each
+    #: particle alone (from its per-particle arrays). The distributed backend evaluates pairwise terms for the pairs
+    #: a rank owns (ghost particles included) and per-particle terms for its owned particles only
+    #: (:mod:`springsim.distributed.partition`).
+    pairwise: ClassVar[bool] = False
 
     #: Layouts of dF/dq and dF/dqd, or None where the term does not depend on q / qd.
     layout_q: BlockLayout | None = None

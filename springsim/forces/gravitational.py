@@ -40,6 +40,7 @@ class ForceGravitational(ForceTerm):
     """
 
     name = "gravitational"
+    pairwise = True
 
     def __init__(self, pairs, c, eps):
         self.pairs = np.asarray(pairs, dtype=np.int64)

@@ -46,6 +46,7 @@ class ForceSpring(ForceTerm):
     """
 
     name = "spring"
+    pairwise = True
 
     def __init__(self, pairs, ke, kd, rest_length, eps: float = 1e-9):
         self.pairs = np.asarray(pairs, dtype=np.int64)

@@ -1,0 +1,98 @@
+"""``springsim run --backend petsc`` under ``mpiexec``: the distributed run and its one-message error handling.
+
+Every rank loads the scene; the ranks agree on the outcome before any distributed work, so a bad input
+(on every rank, or on one only) ends all ranks with one ``springsim: error:`` line from rank 0 and exit
+status 2. Errors during the run are collective (global reductions decide blow-ups and Newton; KSP results
+are global), so every rank stops at the same step and rank 0 reports it, saving the frames so far with
+``--out``. Anything else on one rank (a bug, memory exhausted) prints one line naming the rank and aborts
+the MPI job, so no rank waits forever in a collective call.
+"""
+
+from __future__ import annotations
+
+import sys
+
+from ..errors import SceneError, SimulationError, SpringsimError
+
+__all__ = ["agree", "run_distributed", "abort_on_error"]
+
+
+def agree(error: str | None) -> str | None:
+    """The first rank's error message (prefixed ``rank r:`` when not every rank had it), or None when every rank
+    is fine; collective over MPI's world communicator (a no-op outside ``mpiexec``)."""
+    from ..distributed import env_size
+
+    if env_size() <= 1:
+        return error
+    try:
+        from ..distributed import import_petsc
+
+        _, MPI = import_petsc()
+    except SpringsimError:
+        return error
+    errors = MPI.COMM_WORLD.allgather(error)
+    bad = [(r, e) for r, e in enumerate(errors) if e is not None]
+    if not bad:
+        return None
+    r, e = bad[0]
+    return e if len(bad) == len(errors) and len(set(x for _, x in bad)) == 1 else f"rank {r}: {e}"
+
+
+def abort_on_error(exc: BaseException) -> None:
+    """Print one line naming this rank and abort every rank of the job (status 1)."""
+    from ..distributed import env_rank, import_petsc
+
+    print(f"springsim: error: rank {env_rank()}: {type(exc).__name__}: {' '.join(str(exc).split())}",
+          file=sys.stderr, flush=True)
+    _, MPI = import_petsc()
+    MPI.COMM_WORLD.Abort(1)
+
+
+def run_distributed(args, scene, cfg) -> int:
+    """Run ``scene`` with the petsc backend as configured (see the module docstring); the exit status."""
+    from ..distributed import DISTRIBUTED_INTEGRATORS, import_petsc
+    from .run import _Exit, _provenance, save_or_rescue, summary_rows_distributed, warn_failed_steps
+
+    import_petsc()  # BackendUnavailable (a SpringsimError): one line with the install hint
+    if cfg.integrator not in DISTRIBUTED_INTEGRATORS:
+        raise SceneError("solver.type", f"{cfg.integrator!r} has no distributed version; the petsc backend runs "
+                                        f"{', '.join(DISTRIBUTED_INTEGRATORS)}")
+    if cfg.adaptive:
+        raise SceneError("solver.time_rtol", "adaptive time stepping is not available with the petsc backend")
+    if cfg.linear_solver not in (None, "auto"):
+        raise SceneError("solver.linear_solver", "the petsc backend solves with PETSc's KSP; choose its method "
+                                                 "with petsc_options (-ksp_type, -pc_type)")
+    from ..distributed.driver import simulate_distributed
+    from ..progress import as_progress
+
+    opts = {k: v for k, v in cfg.integrator_options().items() if k not in ("solver", "solver_options")}
+    rtol = cfg.linear_rtol if cfg.linear_rtol is not None else 1e-6
+    record = args.out is not None
+    try:
+        traj = simulate_distributed(scene.model, cfg.integrator, cfg.dt, cfg.run_steps(), frame_every=args.frame_every,
+                                    record=record, progress=as_progress(True), linear_rtol=rtol,
+                                    petsc_options=cfg.petsc_options, **opts)
+    except SimulationError as e:
+        if e.trajectory is None:  # not the root rank: the root reports
+            raise _Exit(1) from None
+        print(f"springsim: error: {e}", file=sys.stderr)
+        if args.out is not None and e.trajectory.frame_count:
+            _provenance(e.trajectory, scene, cfg, args.scene)
+            save_or_rescue(e.trajectory, args.out)
+            print(f"springsim: saved {e.trajectory.frame_count} finite frame(s) up to t={e.trajectory.t[-1]:g} s "
+                  f"to {args.out}", file=sys.stderr)
+        return 1
+    if traj is None:  # not the root rank
+        return 0
+    if args.out is not None:
+        _provenance(traj, scene, cfg, args.scene)
+        save_or_rescue(traj, args.out)
+    warn_failed_steps(traj)
+    if not args.quiet:
+        rows = summary_rows_distributed(scene, cfg, traj)
+        if args.out is not None:
+            rows.append(("output", f"{args.out} ({traj.frame_count} frames)"))
+        w = max(len(k) for k, _ in rows)
+        for k, v in rows:
+            print(f"{k + ':':<{w + 1}} {v}")
+    return 0

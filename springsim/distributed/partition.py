@@ -1,0 +1,159 @@
+"""Partition of a model across MPI ranks: owned particles, owned pairs, ghosts and the local models.
+
+The unknowns of the distributed system are the free particles in the order of the serial system
+(:attr:`springsim.assembly.SystemAssembler.free`: free particle ``k`` is block row ``k``), split into
+contiguous blocks, one per rank (:func:`contiguous_offsets`). So the distributed matrix, gathered, is the
+serial matrix in the same order, and frames gathered in rank order are the free particles in order.
+
+A pair (a spring, a gravitational pair) belongs to the rank that owns its first particle, or its second
+when the first is fixed; pairs between two fixed particles are dropped (they never move anything). A
+rank's **local particles** are, in this order: its owned free particles, the **ghosts** (free particles of
+other ranks that its pairs touch) and the fixed particles its pairs touch. Two local models describe them:
+
+* the **pair model**: every local particle, the owned pairs (re-indexed), no gravity and no drag. The
+  pairwise force terms (:attr:`springsim.forces.ForceTerm.pairwise`) are built from it; their forces and
+  Jacobian blocks on ghost rows belong to the ghosts' owners and are sent there (forces by a reverse
+  scatter that adds, blocks as off-process COO entries).
+* the **particle model**: the owned particles only, no pairs. The per-particle terms (gravity, drag, ...)
+  are built from it, so each particle's own force is evaluated once, by its owner. Owned particles come
+  first in the local order, so its indices are local indices too.
+
+Everything here is plain numpy, so the partition can be built and checked without MPI.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+from ..model import Model
+
+__all__ = ["contiguous_offsets", "pair_families", "LocalPart", "partition"]
+
+
+def contiguous_offsets(count: int, size: int) -> np.ndarray:
+    """Offsets (size + 1,) of ``size`` contiguous blocks of ``count`` items, sizes differing by at most one."""
+    if size < 1:
+        raise ValueError(f"size must be >= 1, got {size}")
+    base, extra = divmod(int(count), int(size))
+    sizes = np.full(size, base, dtype=np.int64)
+    sizes[:extra] += 1
+    return np.concatenate([[0], np.cumsum(sizes)])
+
+
+def pair_families(model: Model) -> dict[str, list[str]]:
+    """The model's pair lists: ``{prefix: [field, ...]}`` for every ``<prefix>_indices`` field of shape (P, 2),
+    the fields being those named ``<prefix>_*`` (indices first). For the current model: ``spring`` and
+    ``gravitational``."""
+    names = [f.name for f in fields(model)]
+    out = {}
+    for name in names:
+        if name.endswith("_indices"):
+            prefix = name[: -len("_indices")]
+            out[prefix] = [name] + [n for n in names if n.startswith(prefix + "_") and n != name]
+    return out
+
+
+@dataclass(eq=False)
+class LocalPart:
+    """One rank's share of a model (see the module docstring).
+
+    Attributes
+    ----------
+    rank, size : int
+    offsets : ndarray (size + 1,)
+        Owned free-index range of every rank: rank ``r`` owns ``offsets[r] .. offsets[r+1]``.
+    local_particles : ndarray (L,)
+        Global particle ids of the local particles: owned, ghosts, fixed.
+    n_own, n_ghost : int
+    local_to_free : ndarray (L,)
+        Global free index (system block row) of each local particle, -1 for fixed ones.
+    owned_pairs : dict
+        Global indices of the owned pairs of each family (``spring``, ``gravitational``).
+    pair_model, particle_model : Model
+    """
+
+    rank: int
+    size: int
+    offsets: np.ndarray
+    local_particles: np.ndarray
+    n_own: int
+    n_ghost: int
+    local_to_free: np.ndarray
+    owned_pairs: dict
+    pair_model: Model
+    particle_model: Model
+
+    @property
+    def lo(self) -> int:
+        return int(self.offsets[self.rank])
+
+    @property
+    def hi(self) -> int:
+        return int(self.offsets[self.rank + 1])
+
+    @property
+    def n_local_free(self) -> int:
+        """Owned plus ghost particles (the local rows the ghost exchange fills)."""
+        return self.n_own + self.n_ghost
+
+    @property
+    def ghost_free(self) -> np.ndarray:
+        """Global free indices of the ghosts."""
+        return self.local_to_free[self.n_own:self.n_local_free]
+
+
+def _sub_model(model: Model, particles: np.ndarray, pairs: dict, *, keep_particle_terms: bool) -> Model:
+    """The model restricted to ``particles`` (global ids, in local order) with the pairs ``pairs``
+    ({family: global pair indices}), re-indexed; gravity and drag only with ``keep_particle_terms``."""
+    local = np.full(model.particle_count, -1, dtype=np.int64)
+    local[particles] = np.arange(particles.size)
+    kw = {}
+    for f in fields(model):
+        v = getattr(model, f.name)
+        if f.name.startswith("particle_"):
+            kw[f.name] = np.array(v[particles])
+    if not keep_particle_terms:
+        kw["particle_drag"] = np.zeros(particles.size)
+    for prefix, names in pair_families(model).items():
+        sel = pairs.get(prefix, np.zeros(0, dtype=np.int64))
+        for name in names:
+            a = getattr(model, name)[sel]
+            kw[name] = local[a] if name == names[0] else np.array(a)
+    return Model(**kw, gravity=model.gravity if keep_particle_terms else 0.0, up_axis=model.up_axis,
+                 pair_epsilon=model.pair_epsilon, metadata=dict(model.metadata))
+
+
+def partition(model: Model, size: int, rank: int, offsets: np.ndarray | None = None) -> LocalPart:
+    """Rank ``rank``'s part of ``model`` split over ``size`` ranks (contiguous free blocks unless ``offsets``)."""
+    if not 0 <= rank < size:
+        raise ValueError(f"rank must be in [0, {size}), got {rank}")
+    free = model.free_particles
+    offsets = contiguous_offsets(free.size, size) if offsets is None else np.asarray(offsets, dtype=np.int64)
+    free_index = np.full(model.particle_count, -1, dtype=np.int64)
+    free_index[free] = np.arange(free.size)
+    owner = np.full(model.particle_count, -1, dtype=np.int64)  # owning rank of each free particle
+    owner[free] = np.searchsorted(offsets, np.arange(free.size), side="right") - 1
+    lo, hi = int(offsets[rank]), int(offsets[rank + 1])
+    owned = free[lo:hi]
+
+    owned_pairs, touched = {}, [np.zeros(0, dtype=np.int64)]
+    for prefix, names in pair_families(model).items():
+        ij = getattr(model, names[0])
+        first = np.where(owner[ij[:, 0]] >= 0, owner[ij[:, 0]], owner[ij[:, 1]]) if ij.size else np.zeros(0, int)
+        sel = np.flatnonzero(first == rank)
+        owned_pairs[prefix] = sel
+        touched.append(ij[sel].ravel())
+    touched = np.unique(np.concatenate(touched))
+    is_owned = np.zeros(model.particle_count, dtype=bool)
+    is_owned[owned] = True
+    others = touched[~is_owned[touched]]
+    ghosts = others[~model.particle_fixed[others]]
+    ghosts = ghosts[np.argsort(free_index[ghosts], kind="stable")]
+    fixed = others[model.particle_fixed[others]]
+    local_particles = np.concatenate([owned, ghosts, fixed]).astype(np.int64)
+    return LocalPart(rank=rank, size=size, offsets=offsets, local_particles=local_particles, n_own=int(owned.size),
+                     n_ghost=int(ghosts.size), local_to_free=free_index[local_particles], owned_pairs=owned_pairs,
+                     pair_model=_sub_model(model, local_particles, owned_pairs, keep_particle_terms=False),
+                     particle_model=_sub_model(model, owned, {}, keep_particle_terms=True))

@@ -1,0 +1,374 @@
+"""The distributed system: ghost exchange, forces, assembly into a PETSc matrix and the KSP solve.
+
+One :class:`DistributedSystem` per rank, built collectively. Vectors of the system are over the
+free DOFs, distributed as the partition says (:mod:`springsim.distributed.partition`); PETSc
+vectors and the matrix have block size 3.
+
+* **Ghost exchange** (:meth:`DistributedSystem.exchange`): one PETSc scatter from the distributed
+  vector to the rank's local free particles (owned and ghosts); fixed particles never move, so their
+  local positions are set once.
+* **Forces** (:meth:`DistributedSystem.forces`): pairwise terms over the owned pairs and per-particle
+  terms over the owned particles, on the local arrays; the rows of ghosts go back to their owners by the
+  same scatter in reverse, adding.
+* **Assembly** (:meth:`DistributedSystem.assemble`): springsim's serial assembler scatters the 3x3 COO
+  blocks of the local terms into a local block-CSR matrix over owned and ghost particles (pattern
+  computed once, mass on the owned diagonal only); its rows go into the PETSc AIJ matrix (block size 3)
+  with ``MatSetValuesBlockedLocal`` through the local-to-global map, adding; PETSc sends the ghost rows to
+  their owners during assembly. The matrix is preallocated exactly, once, from the global pair lists, and
+  a new nonzero is an error.
+* **Solve** (:meth:`DistributedSystem.solve`): a new KSP per assembled matrix (a kept GAMG preconditioner
+  re-set-up on new values diverged on the benchmark cloth), CG with GAMG by default (GMRES when the matrix
+  is not symmetric), the rigid-body modes at the current positions as GAMG's near-null space, then
+  ``setFromOptions``, so every ``-ksp_*``/``-pc_*`` option (command line, ``PETSC_OPTIONS``,
+  ``solver.petsc_options``) overrides the defaults. The result is checked against the true residual; a
+  miss is retried once with GMRES and five times the iteration limit from the first attempt's iterate,
+  and reported if that misses too (:class:`~springsim.linsolve.LinearSolveResult` contract).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import shlex
+import time
+
+import numpy as np
+
+from ..assembly import SystemAssembler
+from ..forces import make_force_terms
+from ._petsc import import_petsc
+from .partition import LocalPart, pair_families, partition
+
+__all__ = ["DistributedSystem", "KSPResult", "owned_row_pattern"]
+
+
+def owned_row_pattern(model, lo: int, hi: int) -> tuple[np.ndarray, np.ndarray]:
+    """Block pattern of the system rows ``lo .. hi`` (free indices): ``(indptr, cols)``, columns sorted.
+
+    Row ``k`` holds ``k`` and every free particle paired with it in any pair list; it is symmetric, so each
+    rank computes the exact pattern of its rows, entries other ranks send included, from the pair lists.
+    """
+    free = model.free_particles
+    F = free.size
+    fi = np.full(model.particle_count, -1, dtype=np.int64)
+    fi[free] = np.arange(F)
+    r, c = [np.arange(lo, hi)], [np.arange(lo, hi)]
+    for names in pair_families(model).values():
+        ij = fi[getattr(model, names[0])]
+        ij = ij[(ij[:, 0] >= 0) & (ij[:, 1] >= 0)]
+        for a, b in ((0, 1), (1, 0)):
+            mine = (ij[:, a] >= lo) & (ij[:, a] < hi)
+            r.append(ij[mine, a])
+            c.append(ij[mine, b])
+    key = np.unique((np.concatenate(r) - lo) * F + np.concatenate(c))
+    rows, cols = key // F, key % F
+    indptr = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=hi - lo))])
+    return indptr, cols
+
+
+def _scalar_csr(indptr: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Scalar CSR (3 rows per block row, 3 columns per block) of a block pattern."""
+    m = np.diff(indptr)                        # blocks per block row
+    cols3 = (3 * cols[:, None] + np.arange(3)).ravel()
+    lengths = np.repeat(3 * m, 3)              # entries per scalar row
+    starts = np.repeat(3 * indptr[:-1], 3)     # where each scalar row's columns start in cols3
+    sptr = np.concatenate([[0], np.cumsum(lengths)])
+    idx = np.repeat(starts - sptr[:-1], lengths) + np.arange(sptr[-1])
+    return sptr, cols3[idx]
+
+
+@dataclasses.dataclass
+class KSPResult:
+    """One distributed linear solve: ``x`` over the owned DOFs, and how it went (as
+    :class:`~springsim.linsolve.LinearSolveResult`)."""
+
+    x: np.ndarray
+    converged: bool
+    iterations: int
+    residual: float
+    method: str
+    setup_s: float = 0.0
+    solve_s: float = 0.0
+    failure: str | None = None
+    fallback: str | None = None
+
+    @property
+    def time_s(self) -> float:
+        return self.setup_s + self.solve_s
+
+
+class DistributedSystem:
+    """Rank-local part of the distributed system of ``model`` (build it on every rank of ``comm``).
+
+    Parameters
+    ----------
+    model : Model
+        The whole model, the same on every rank.
+    comm : petsc4py Comm, optional
+        Default ``PETSc.COMM_WORLD``.
+    rtol, atol, maxiter : float, float, int
+        Linear tolerance (true relative residual) and iteration limit of the first attempt.
+    petsc_options : str or dict, optional
+        PETSc options (``"-pc_gamg_threshold 0.02"`` or ``{"pc_gamg_threshold": 0.02}``) inserted into the
+        options database before the solver reads it.
+    ksp_type, pc_type : str
+        Defaults before the options database (``cg`` or ``gmres`` by the matrix symmetry when None; ``gamg``).
+    """
+
+    def __init__(self, model, comm=None, *, rtol: float = 1e-6, atol: float = 0.0, maxiter: int = 1000,
+                 petsc_options=None, ksp_type: str | None = None, pc_type: str = "gamg"):
+        PETSc, MPI = import_petsc()
+        self.PETSc = PETSc
+        self.comm = PETSc.COMM_WORLD if comm is None else comm
+        self.mpi = self.comm.tompi4py()
+        self.rank, self.size = self.comm.getRank(), self.comm.getSize()
+        self.model = model
+        t0 = time.perf_counter()
+        self.part: LocalPart = partition(model, self.size, self.rank)
+        p = self.part
+        self.free_count = int(model.free_count)
+        self.rtol, self.atol, self.maxiter = float(rtol), float(atol), int(maxiter)
+        self.ksp_type, self.pc_type = ksp_type, pc_type
+        if petsc_options:
+            self.insert_options(petsc_options)
+
+        # local arrays (owned, ghosts, fixed); the fixed rows are constant
+        self.q_loc = np.array(model.particle_q[p.local_particles])
+        self.v_loc = np.array(model.particle_qd[p.local_particles])
+        self.v_loc[p.n_local_free:] = 0.0
+        self.f_loc = np.zeros_like(self.q_loc)
+        self.pair_terms = [t for t in make_force_terms(p.pair_model) if t.pairwise]
+        self.particle_terms = [t for t in make_force_terms(p.particle_model) if not t.pairwise]
+        self.mass = np.array(model.particle_mass[p.local_particles[:p.n_own]])
+
+        # PETSc vectors and the ghost scatter
+        own3, F3, nlf = 3 * p.n_own, 3 * self.free_count, p.n_local_free
+        self.x = PETSc.Vec().createMPI((own3, F3), bsize=3, comm=self.comm)
+        self.b, self.w = self.x.duplicate(), self.x.duplicate()
+        self.loc = PETSc.Vec().createSeq(3 * nlf, bsize=3, comm=PETSc.COMM_SELF)
+        gidx = (3 * p.local_to_free[:nlf, None] + np.arange(3)).ravel().astype(PETSc.IntType)
+        is_g = PETSc.IS().createGeneral(gidx, comm=PETSc.COMM_SELF)
+        is_l = PETSc.IS().createStride(3 * nlf, 0, 1, comm=PETSc.COMM_SELF)
+        self.scatter = PETSc.Scatter().create(self.x, is_g, self.loc, is_l)
+
+        # local assembler: owned and ghost particles free, mass on the owned diagonal only
+        mass = np.array(p.pair_model.particle_mass)
+        mass[p.n_own:] = 0.0
+        self.asm = SystemAssembler(dataclasses.replace(p.pair_model, particle_mass=mass),
+                                   self.pair_terms + self.particle_terms)
+        self.lgmap = PETSc.LGMap().create(p.local_to_free[:nlf].astype(PETSc.IntType), bsize=3, comm=self.comm)
+
+        # the matrix, preallocated exactly from the global pattern of the owned rows
+        indptr, cols = owned_row_pattern(model, p.lo, p.hi)
+        sptr, scols = _scalar_csr(indptr, cols)
+        A = PETSc.Mat().create(comm=self.comm)
+        A.setSizes(((own3, F3), (own3, F3)), bsize=3)
+        A.setType(PETSc.Mat.Type.AIJ)
+        A.setPreallocationCSR((sptr.astype(PETSc.IntType), scols.astype(PETSc.IntType), np.zeros(scols.size)))
+        A.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, True)
+        A.setLGMap(self.lgmap, self.lgmap)
+        self.A = A
+        self.nnz_local = int(scols.size)
+        self.symmetric = True
+        self.assembly_version = 0
+        self.setup_s = time.perf_counter() - t0
+        self.timings = dict(exchange_s=0.0, force_s=0.0, assembly_s=0.0, insert_s=0.0, setup_s=0.0, solve_s=0.0)
+
+    # -- options ------------------------------------------------------------------------------------------------
+    def insert_options(self, options) -> None:
+        """Insert ``options`` (a string of ``-name value`` pairs, or a mapping name -> value) into PETSc's
+        options database."""
+        if isinstance(options, dict):
+            text = " ".join(f"-{str(k).lstrip('-')} {'' if v is None or v is True else v}" for k, v in options.items())
+        else:
+            text = " ".join(shlex.split(str(options)))
+        self.PETSc.Options().insertString(text)
+
+    # -- global reductions ---------------------------------------------------------------------------------------
+    def norm(self, x_own: np.ndarray) -> float:
+        """2-norm over all ranks of an owned array."""
+        return float(np.sqrt(self.mpi.allreduce(float(np.dot(x_own.ravel(), x_own.ravel())))))
+
+    def all_finite(self, *arrays) -> bool:
+        """Whether ``arrays`` are finite on every rank."""
+        ok = all(bool(np.all(np.isfinite(a))) for a in arrays)
+        return bool(self.mpi.allreduce(ok, op=self._mpi_land()))
+
+    def _mpi_land(self):
+        from mpi4py import MPI
+
+        return MPI.LAND
+
+    # -- ghosts, forces ------------------------------------------------------------------------------------------
+    def exchange(self, q_own: np.ndarray, v_own: np.ndarray) -> None:
+        """Fill the local positions and velocities (owned and ghosts) from the owned arrays of every rank."""
+        t0 = time.perf_counter()
+        nlf = self.part.n_local_free
+        for own, loc in ((q_own, self.q_loc), (v_own, self.v_loc)):
+            self.x.array[:] = own.ravel()
+            self.scatter.scatter(self.x, self.loc, addv=self.PETSc.InsertMode.INSERT_VALUES,
+                                 mode=self.PETSc.ScatterMode.FORWARD)
+            loc[:nlf] = self.loc.array.reshape(-1, 3)
+        self.timings["exchange_s"] += time.perf_counter() - t0
+
+    def forces(self, q_own: np.ndarray, v_own: np.ndarray, exchange: bool = True) -> np.ndarray:
+        """Total force [N] on the owned particles (n_own, 3) at the global state whose owned parts are given."""
+        if exchange:
+            self.exchange(q_own, v_own)
+        t0 = time.perf_counter()
+        p, f = self.part, self.f_loc
+        f.fill(0.0)
+        for t in self.pair_terms:
+            t.eval_force(self.q_loc, self.v_loc, f)
+        n = p.n_own
+        for t in self.particle_terms:
+            t.eval_force(self.q_loc[:n], self.v_loc[:n], f[:n])
+        self.loc.array[:] = f[:p.n_local_free].ravel()
+        self.w.set(0.0)
+        self.scatter.scatter(self.loc, self.w, addv=self.PETSc.InsertMode.ADD_VALUES,
+                             mode=self.PETSc.ScatterMode.REVERSE)
+        out = self.w.array.reshape(-1, 3).copy()
+        self.timings["force_s"] += time.perf_counter() - t0
+        return out
+
+    # -- assembly --------------------------------------------------------------------------------------------------
+    def assemble(self, q_own, v_own, a: float, b: float, mode: str, exchange: bool = True):
+        """``A = M - a dF/dq - b dF/dqd`` at the given state, into :attr:`A` (the PETSc matrix)."""
+        if exchange:
+            self.exchange(q_own, v_own)
+        t0 = time.perf_counter()
+        m = self.asm.assemble(self.q_loc, self.v_loc, a, b, mode)
+        t1 = time.perf_counter()
+        bsr = m.bsr
+        A = self.A
+        A.zeroEntries()
+        A.setValuesBlockedLocalCSR(bsr.indptr.astype(self.PETSc.IntType), bsr.indices.astype(self.PETSc.IntType),
+                                   bsr.data.reshape(-1), addv=self.PETSc.InsertMode.ADD_VALUES)
+        A.assemble()
+        self.symmetric = bool(self.mpi.allreduce(bool(m.symmetric), op=self._mpi_land()))
+        self.assembly_version += 1
+        self._positions = q_own
+        self.timings["assembly_s"] += t1 - t0
+        self.timings["insert_s"] += time.perf_counter() - t1
+        return A
+
+    def precision_loss(self) -> float:
+        """Relative precision to which the assembled matrix holds the masses, max over ranks:
+        ``u max_k A_kk / m_k`` over the diagonal entries of the free DOFs (ghost contributions included).
+
+        The serial :meth:`~springsim.assembly.SystemAssembler.precision_loss` takes the largest entry of each
+        3x3 diagonal block; for the positive semi-definite blocks of the ``spd`` mode that is a diagonal entry,
+        so the two agree there (for the other modes this one can be smaller by the blocks' off-diagonal/diagonal
+        ratio)."""
+        d = self.A.getDiagonal()
+        local = 0.0
+        if self.part.n_own:
+            ratio = np.abs(d.array.reshape(-1, 3)).max(axis=1) / self.mass
+            local = float(np.finfo(np.float64).eps * ratio.max())
+        d.destroy()
+        from mpi4py import MPI
+
+        return float(self.mpi.allreduce(local, op=MPI.MAX))
+
+    # -- solve -----------------------------------------------------------------------------------------------------
+    def _ksp(self, ksp_type: str, maxiter: int, x0_nonzero: bool):
+        PETSc = self.PETSc
+        ksp = PETSc.KSP().create(comm=self.comm)
+        ksp.setOperators(self.A)
+        ksp.setType(ksp_type)
+        ksp.getPC().setType(self.pc_type)
+        ksp.setTolerances(rtol=self.rtol, atol=self.atol, max_it=maxiter)
+        ksp.setNormType(PETSc.KSP.NormType.UNPRECONDITIONED)
+        ksp.setInitialGuessNonzero(x0_nonzero)
+        ksp.setFromOptions()
+        return ksp
+
+    def _near_null_space(self):
+        coords = self.x.duplicate()
+        coords.array[:] = np.asarray(self._positions).ravel()
+        ns = self.PETSc.NullSpace().createRigidBody(coords)
+        self.A.setNearNullSpace(ns)
+        return ns
+
+    def solve(self, rhs_own: np.ndarray, x0: np.ndarray | None = None) -> KSPResult:
+        """Solve ``A x = rhs`` (owned parts); see the module docstring for the defaults, checks and retry."""
+        PETSc = self.PETSc
+        b, x = self.b, self.x
+        b.array[:] = rhs_own.ravel()
+        bn = b.norm()
+        if bn == 0.0:
+            return KSPResult(np.zeros_like(rhs_own), True, 0, 0.0, "petsc")
+        ns = self._near_null_space()
+        first = self.ksp_type or ("cg" if self.symmetric else "gmres")
+        attempts = [(first, self.maxiter), ("gmres", 5 * self.maxiter)]
+        its, setup, solve = 0, 0.0, 0.0
+        fallback, method, rel, reason = None, "", float("inf"), 0
+        target = max(self.rtol, self.atol / bn)
+        for k, (kind, maxiter) in enumerate(attempts):
+            if k == 0:
+                x.array[:] = 0.0 if x0 is None else np.asarray(x0).ravel()
+            t0 = time.perf_counter()
+            ksp = self._ksp(kind, maxiter, x0_nonzero=(k > 0 or x0 is not None))
+            ksp.setUp()
+            t1 = time.perf_counter()
+            ksp.solve(b, x)
+            t2 = time.perf_counter()
+            setup += t1 - t0
+            solve += t2 - t1
+            its += ksp.getIterationNumber()
+            reason = int(ksp.getConvergedReason())
+            method = f"petsc {ksp.getType()}+{ksp.getPC().getType()}"
+            k_its = ksp.getIterationNumber()
+            ksp.destroy()
+            self.A.mult(x, self.w)
+            self.w.aypx(-1.0, b)              # w = b - A x
+            rel = self.w.norm() / bn
+            # 1 % slack: Krylov recurrences track the true residual only to round-off
+            if reason > 0 and np.isfinite(rel) and rel <= 1.01 * target:
+                break
+            if k == 0:
+                fallback = (f"{method}: {'not converged' if reason <= 0 else 'true residual above tolerance'} "
+                    f"(reason {reason}, relative residual {rel:.2e} after {k_its} iterations)")
+        ns.destroy()
+        self.timings["setup_s"] += setup
+        self.timings["solve_s"] += solve
+        ok = reason > 0 and np.isfinite(rel) and rel <= 1.01 * target
+        failure = None if ok else (f"{method}: relative residual {rel:.2e} above rtol {self.rtol:g} "
+                                   f"(PETSc reason {reason}) after the retry")
+        return KSPResult(x.array.reshape(-1, 3).copy(), ok, its, float(rel), method + ("" if fallback is None else
+                         " (retry)"), setup, solve, failure, fallback)
+
+    # -- gathering -------------------------------------------------------------------------------------------------
+    def gather_full(self, q_own: np.ndarray, v_own: np.ndarray, root: int = 0):
+        """Full (N, 3) positions and velocities on ``root`` (None elsewhere): the owned arrays of every rank in
+        rank order are the free particles in order; fixed particles from the model."""
+        counts = self.mpi.gather(3 * q_own.shape[0], root=root)
+        out = []
+        for own, init in ((q_own, self.model.particle_q), (v_own, None)):
+            if self.rank == root:
+                buf = np.empty(3 * self.free_count)
+                self.mpi.Gatherv(np.ascontiguousarray(own).ravel(), (buf, counts), root=root)
+                full = np.array(init) if init is not None else np.zeros((self.model.particle_count, 3))
+                full[self.model.free_particles] = buf.reshape(-1, 3)
+                out.append(full)
+            else:
+                self.mpi.Gatherv(np.ascontiguousarray(own).ravel(), None, root=root)
+                out.append(None)
+        return out[0], out[1]
+
+    def gather_matrix(self, root: int = 0):
+        """The assembled matrix as a scipy CSR on ``root`` (None elsewhere), for checks on small systems."""
+        import scipy.sparse as sp
+
+        indptr, indices, data = self.A.getValuesCSR()
+        r0, _ = self.A.getOwnershipRange()
+        rows = np.repeat(np.arange(r0, r0 + indptr.size - 1), np.diff(indptr))
+        parts = self.mpi.gather((rows, np.asarray(indices), np.asarray(data)), root=root)
+        if self.rank != root:
+            return None
+        n = 3 * self.free_count
+        r, c, v = (np.concatenate([p[i] for p in parts]) for i in range(3))
+        return sp.csr_matrix((v, (r, c)), shape=(n, n))
+
+    def destroy(self) -> None:
+        for obj in (self.A, self.x, self.b, self.w, self.loc, self.scatter, self.lgmap):
+            obj.destroy()

@@ -1,0 +1,96 @@
+"""Programs the distributed tests start under ``mpiexec`` (``python -m tests.distributed.mpi_cases CASE ...``)."""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+
+
+def _state(model, seed=7):
+    """A perturbed state: free particles moved by ~1 cm and given velocities (fixed ones stay)."""
+    rng = np.random.default_rng(seed)
+    free = ~model.particle_fixed[:, None]
+    q = model.particle_q + 0.01 * rng.standard_normal(model.particle_q.shape) * free
+    v = 0.1 * rng.standard_normal(model.particle_q.shape) * free
+    return q, v
+
+
+def trajectory(scene, integrator, dt, steps, out):
+    from springsim.distributed import simulate_distributed
+
+    from .scenes import scene as make
+
+    opts = {} if integrator in ("explicit_euler", "symplectic_euler", "midpoint") else dict(jacobian="spd")
+    traj = simulate_distributed(make(scene), integrator, float(dt), int(steps), linear_rtol=1e-10,
+                                on_nonconvergence="ignore", **opts)
+    if traj is not None:
+        np.savez(out, q=traj.q, qd=traj.qd, newton=[s.newton_iterations for s in traj.stats],
+                 ok=[s.ok for s in traj.stats])
+    return 0
+
+
+def matrix(scene, out):
+    """The distributed matrix (gathered) and forces at a perturbed state, with their serial counterparts' inputs."""
+    from springsim.distributed import DistributedSystem
+
+    from .scenes import scene as make
+
+    model = make(scene)
+    q, v = _state(model)
+    ds = DistributedSystem(model)
+    own = model.free_particles[ds.part.lo:ds.part.hi]
+    f = ds.forces(q[own], v[own])
+    f_full, _ = ds.gather_full(f, f)
+    mats = {}
+    for mode in ("exact", "spd"):
+        ds.assemble(q[own], v[own], 2.5e-4, 1.6e-2, mode)
+        A = ds.gather_matrix()
+        if A is not None:
+            A.sort_indices()
+            mats[mode] = A
+    if ds.rank == 0:
+        np.savez(out, f=f_full[model.free_particles], size=ds.size,
+                 **{f"{m}_{k}": getattr(A, k) for m, A in mats.items() for k in ("data", "indices", "indptr")})
+    return 0
+
+
+def rank_error(scene_path, rank):
+    """``springsim run --backend petsc`` where rank ``rank``'s force evaluation raises at its third call."""
+    from springsim.cli import main
+    from springsim.distributed import env_rank
+    from springsim.distributed.system import DistributedSystem
+
+    calls = {"n": 0}
+    original = DistributedSystem.forces
+
+    def forces(self, *a, **k):
+        calls["n"] += 1
+        if env_rank() == int(rank) and calls["n"] == 3:
+            raise RuntimeError("injected failure")
+        return original(self, *a, **k)
+
+    DistributedSystem.forces = forces
+    return main(["run", scene_path, "--backend", "petsc", "--steps", "5", "-q"])
+
+
+def solver_failure(scene):
+    """A KSP limited to one iteration with ``on_nonconvergence="raise"``: every rank stops at step 1."""
+    from springsim.distributed import env_rank, simulate_distributed
+    from springsim.errors import SimulationError
+
+    from .scenes import scene as make
+
+    try:
+        simulate_distributed(make(scene), "linearized_implicit", 1 / 60, 3, linear_rtol=1e-12,
+                             petsc_options="-ksp_max_it 1", on_nonconvergence="raise")
+    except SimulationError as e:
+        if env_rank() == 0:
+            print(f"springsim: error: {e}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    case, *args = sys.argv[1:]
+    sys.exit(globals()[case](*args))

@@ -1,0 +1,233 @@
+"""The petsc backend against the serial path: partition, forces, the gathered matrix, trajectories on 1 and 2 ranks,
+and failure paths that end every rank with one message (each bounded by a timeout).
+
+The partition tests are plain numpy and always run. The others need petsc4py, mpi4py and ``mpiexec``; they are
+skipped where those are absent unless ``SPRINGSIM_REQUIRE_PETSC=1`` (set by ``.ci/run``'s distributed stage), where
+their absence fails them.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from springsim.distributed import contiguous_offsets, partition
+from springsim.forces import eval_forces, make_force_terms
+
+from .scenes import scene
+
+ROOT = Path(__file__).resolve().parents[2]
+TIMEOUT = 180  # s: a hang fails the test instead of the suite
+
+
+def _petsc_reason() -> str | None:
+    from springsim.distributed import petsc_available
+
+    if not petsc_available():
+        return "petsc4py/mpi4py not importable (docs/distributed.md)"
+    if shutil.which("mpiexec") is None:
+        return "no mpiexec on PATH"
+    return None
+
+
+_REASON = _petsc_reason()
+if _REASON and os.environ.get("SPRINGSIM_REQUIRE_PETSC") == "1":
+    needs_petsc = pytest.mark.usefixtures()  # run anyway: the tests then fail with the reason
+
+    def _fail():
+        pytest.fail(f"SPRINGSIM_REQUIRE_PETSC=1 but {_REASON}")
+else:
+    needs_petsc = pytest.mark.skipif(_REASON is not None, reason=_REASON or "")
+
+    def _fail():
+        pass
+
+
+def mpirun(n: int, *args, check: bool = True) -> subprocess.CompletedProcess:
+    """``mpiexec -n n python -m tests.distributed.mpi_cases *args`` (or a command, when args[0] is a list)."""
+    _fail()
+    cmd = ["mpiexec", "--oversubscribe", "--quiet", "-n", str(n)]
+    if hasattr(os, "geteuid") and os.geteuid() == 0:
+        cmd.insert(1, "--allow-run-as-root")  # Open MPI refuses root without it
+    cmd += list(args[0]) if isinstance(args[0], list) else [sys.executable, "-m", "tests.distributed.mpi_cases", *args]
+    env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1")
+    r = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=TIMEOUT)
+    if check and r.returncode != 0:
+        raise AssertionError(f"{' '.join(cmd)} exited {r.returncode}\n{r.stdout}\n{r.stderr}")
+    return r
+
+
+# -- partition (numpy only) -------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("size", [1, 2, 3, 5])
+@pytest.mark.parametrize("name", ["cloth", "irregular"])
+def test_partition_covers_everything_once(name, size):
+    model = scene(name)
+    free = model.free_particles
+    owned, pairs = [], {"spring": [], "gravitational": []}
+    for r in range(size):
+        p = partition(model, size, r)
+        owned.append(p.local_particles[:p.n_own])
+        for k, v in p.owned_pairs.items():
+            pairs[k].append(v)
+        assert np.all(p.local_to_free[:p.n_local_free] >= 0) and np.all(p.local_to_free[p.n_local_free:] == -1)
+        assert np.array_equal(p.local_to_free[:p.n_own], np.arange(p.lo, p.hi))
+        assert p.pair_model.gravity == 0.0 and not p.pair_model.particle_drag.any()
+        assert p.particle_model.spring_count == 0 and p.particle_model.particle_count == p.n_own
+    assert np.array_equal(np.concatenate(owned), free)  # contiguous blocks, in the serial system's order
+    fixed = model.particle_fixed
+    for k, ij in (("spring", model.spring_indices), ("gravitational", model.gravitational_indices)):
+        active = np.flatnonzero(~(fixed[ij[:, 0]] & fixed[ij[:, 1]]))
+        assert np.array_equal(np.sort(np.concatenate(pairs[k])), active)
+
+
+@pytest.mark.parametrize("size", [1, 2, 4])
+@pytest.mark.parametrize("name", ["cloth", "irregular"])
+def test_local_forces_sum_to_the_serial_forces(name, size):
+    """Pairwise terms on the owned pairs (ghost rows sent to their owners) plus per-particle terms on the owned
+    particles give the serial forces, to round-off (only the order of the sums differs)."""
+    from .mpi_cases import _state
+
+    model = scene(name)
+    q, v = _state(model)
+    ref = eval_forces(make_force_terms(model), q, v)
+    total = np.zeros_like(ref)
+    for r in range(size):
+        p = partition(model, size, r)
+        ql, vl = q[p.local_particles], v[p.local_particles]
+        f = np.zeros_like(ql)
+        for t in make_force_terms(p.pair_model):
+            assert t.pairwise
+            t.eval_force(ql, vl, f)
+        for t in make_force_terms(p.particle_model):
+            assert not t.pairwise
+            t.eval_force(ql[:p.n_own], vl[:p.n_own], f[:p.n_own])
+        np.add.at(total, p.local_particles[:p.n_local_free], f[:p.n_local_free])
+    free = model.free_particles
+    assert np.abs(total[free] - ref[free]).max() <= 1e-12 * np.abs(ref).max()
+
+
+def test_contiguous_offsets():
+    assert contiguous_offsets(10, 3).tolist() == [0, 4, 7, 10]
+    assert contiguous_offsets(2, 4).tolist() == [0, 1, 2, 2, 2]
+    with pytest.raises(ValueError):
+        contiguous_offsets(3, 0)
+
+
+# -- PETSc: matrix, trajectories --------------------------------------------------------------------------------------
+@needs_petsc
+@pytest.mark.parametrize("ranks", [1, 2, 3])
+@pytest.mark.parametrize("name", ["cloth", "irregular"])
+def test_gathered_matrix_equals_serial(name, ranks, tmp_path):
+    from springsim.assembly import SystemAssembler
+
+    from .mpi_cases import _state
+
+    out = tmp_path / "m.npz"
+    mpirun(ranks, "matrix", name, str(out))
+    d = np.load(out)
+    model = scene(name)
+    q, v = _state(model)
+    terms = make_force_terms(model)
+    f = eval_forces(terms, q, v)[model.free_particles]
+    assert int(d["size"]) == ranks
+    assert np.abs(d["f"] - f).max() <= 1e-12 * np.abs(f).max()
+    asm = SystemAssembler(model, terms)
+    for mode in ("exact", "spd"):
+        S = asm.assemble(q, v, 2.5e-4, 1.6e-2, mode).tocsr()
+        A = sp.csr_matrix((d[f"{mode}_data"], d[f"{mode}_indices"], d[f"{mode}_indptr"]), shape=S.shape)
+        assert abs(A - S).max() <= 1e-13 * abs(S).max(), mode
+
+
+# symplectic Euler: the same operations up to the order of the force sums, so agreement to round-off. Implicit: every
+# KSP solve meets rtol 1e-10 on the true residual while the serial reference solves directly, so each velocity update
+# differs by at most cond(A) * 1e-10 relative; cond(A) <= 1e3 on these systems (the mass dominates at these steps),
+# hence the 1e-7 m bound over the run (measured: 1e-12 ... 1e-10 m).
+CASES = [("cloth", "symplectic_euler", 1e-4, 30, 1e-12), ("irregular", "symplectic_euler", 1e-3, 30, 1e-12),
+         ("cloth", "linearized_implicit", 1 / 60, 10, 1e-7), ("irregular", "linearized_implicit", 1e-2, 10, 1e-7),
+         ("cloth", "implicit_euler", 1 / 60, 5, 1e-7), ("irregular", "implicit_euler", 1e-2, 5, 1e-7),
+         ("irregular", "midpoint", 1e-3, 10, 1e-12), ("irregular", "explicit_euler", 1e-4, 10, 1e-12)]
+
+
+@needs_petsc
+@pytest.mark.parametrize("ranks", [1, 2])
+@pytest.mark.parametrize("name, integrator, dt, steps, bound", CASES)
+def test_trajectory_matches_serial(name, integrator, dt, steps, bound, ranks, tmp_path):
+    from springsim import simulate
+    from springsim.integrators import make_integrator
+
+    out = tmp_path / "t.npz"
+    mpirun(ranks, "trajectory", name, integrator, repr(dt), str(steps), str(out))
+    d = np.load(out)
+    model = scene(name)
+    implicit = integrator in ("linearized_implicit", "implicit_euler")
+    opts = dict(solver="direct", jacobian="spd", on_nonconvergence="ignore") if implicit else {}
+    ref = simulate(model, make_integrator(integrator, model, **opts), dt, steps)
+    assert d["q"].shape == ref.q.shape
+    scale = np.abs(ref.q).max()
+    assert np.abs(d["q"] - ref.q).max() <= bound * max(scale, 1.0)
+    if implicit:
+        assert list(d["newton"]) == [s.newton_iterations for s in ref.stats]
+        assert list(d["ok"]) == [s.ok for s in ref.stats]
+
+
+@needs_petsc
+def test_cli_two_ranks_matches_serial_run(tmp_path):
+    """``mpiexec -n 2 springsim run --backend petsc --out``: rank 0 alone prints and writes, the frames match a
+    serial run of the same scene (linearized implicit Euler, AMG-CG against KSP CG + GAMG, both at rtol 1e-10)."""
+    from springsim.cli import main
+
+    scene_path = tmp_path / "cloth.yaml"
+    scene_path.write_text("solver: {type: linearized_implicit, timestep: 0.0166667, steps: 4, jacobian: spd, "
+                          "linear_rtol: 1.0e-10}\nbenchmark_cloth: {n: 12}\n")
+    out = tmp_path / "d.npz"
+    r = mpirun(2, [sys.executable, "-m", "springsim", "run", str(scene_path), "--backend", "petsc", "--out", str(out)])
+    assert r.stdout.count("backend:") == 1 and "petsc, 2 MPI rank(s)" in r.stdout and "failed steps:        0" in r.stdout
+    assert main(["run", str(scene_path), "--out", str(tmp_path / "s.npz"), "-q"]) == 0
+    d, s = np.load(out), np.load(tmp_path / "s.npz")
+    assert d["q"].shape == s["q"].shape == (5, 144, 3)
+    assert np.abs(d["q"] - s["q"]).max() < 1e-7
+
+
+# -- failure paths -------------------------------------------------------------------------------------------------
+@needs_petsc
+def test_bad_input_one_message_on_every_rank(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("solver: {type: linearized_implicit, timestep: 0.01, backend: petsc}\nparticles:\n"
+                   "  - {pos: [0, 0, 0], mass: 1}\n  - {pos: [1, 0, 0], mass: 1}\n"
+                   "springs:\n  - {particle_ids: [0, 1], stiffness: -3}\n")
+    r = mpirun(2, [sys.executable, "-m", "springsim", "run", str(bad)], check=False)
+    assert r.returncode == 2
+    lines = [x for x in r.stderr.splitlines() if x.startswith("springsim:")]
+    assert lines == [f"springsim: error: {bad}: springs[0].stiffness: must be >= 0, got -3"]
+
+
+@needs_petsc
+def test_one_rank_failure_ends_every_rank_with_one_message():
+    r = mpirun(2, "rank_error", str(ROOT / "scenes" / "cloth_64.yaml"), "1", check=False)
+    assert r.returncode != 0
+    lines = [x for x in r.stderr.splitlines() if x.startswith("springsim:")]
+    assert lines == ["springsim: error: rank 1: RuntimeError: injected failure"]
+
+
+@needs_petsc
+def test_solver_failure_is_raised_on_every_rank_not_used():
+    r = mpirun(2, "solver_failure", "cloth", check=False)
+    assert r.returncode == 1
+    lines = [x for x in r.stderr.splitlines() if x.startswith("springsim:")]
+    assert len(lines) == 1 and "SolverError" in lines[0] and "relative residual" in lines[0]
+
+
+@needs_petsc
+def test_mpi_without_petsc_backend_is_refused():
+    r = mpirun(2, [sys.executable, "-m", "springsim", "run", str(ROOT / "scenes" / "cloth_64.yaml"), "--steps", "1"],
+               check=False)
+    assert r.returncode == 2
+    assert [x for x in r.stderr.splitlines() if x.startswith("springsim:")] == [
+        "springsim: error: 2 MPI processes need --backend petsc (solver.backend: petsc)"]
