@@ -26,4 +26,5 @@ BENCHMARKS = {
     "jacobian-modes": "jacobian_modes",
     "blas-threads": "blas_threads",
     "explicit-speed": "explicit_speed",
+    "distributed": "distributed",
 }

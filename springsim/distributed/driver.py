@@ -123,6 +123,7 @@ def simulate_distributed(model, integrator: str, dt: float, steps: int, *, comm=
     dt = _positive_time("dt", dt)
     steps = _count("steps", steps, 0)
     frame_every = _count("frame_every", frame_every, 1)
+    t_init = time.perf_counter()
     run = DistributedRun(model, integrator, comm=comm, linear_rtol=linear_rtol, linear_maxiter=linear_maxiter,
                          petsc_options=petsc_options, check_energy=check_energy, root=root, **options)
     progress = as_progress(progress) if run.is_root else None
@@ -132,7 +133,8 @@ def simulate_distributed(model, integrator: str, dt: float, steps: int, *, comm=
     meta = {"springsim_version": __version__, "model_fingerprint": model.fingerprint(),
             "scene": model.metadata.get("name"), "source": model.metadata.get("source"), "integrator": integ.name,
             "linear_solver": "petsc" if integ.implicit else None, "jacobian": getattr(integ, "jacobian", None),
-            "backend": "petsc", "ranks": run.system.size, "dt": dt, "steps": steps, "frame_every": frame_every}
+            "backend": "petsc", "ranks": run.system.size, "dt": dt, "steps": steps, "frame_every": frame_every,
+            "init_s": time.perf_counter() - t_init}
     wall0, cpu0 = time.perf_counter(), time.process_time()
     k = 0
     try:

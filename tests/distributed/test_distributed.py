@@ -231,3 +231,24 @@ def test_mpi_without_petsc_backend_is_refused():
     assert r.returncode == 2
     assert [x for x in r.stderr.splitlines() if x.startswith("springsim:")] == [
         "springsim: error: 2 MPI processes need --backend petsc (solver.backend: petsc)"]
+
+
+@needs_petsc
+@pytest.mark.slow
+def test_distributed_benchmark_runs(tmp_path):
+    """``python -m benchmarks distributed`` at a tiny size: its columns, and 1 and 2 ranks agree with the serial
+    path to the linear tolerance's effect on the positions."""
+    import csv
+
+    from benchmarks import distributed
+
+    _fail()
+    assert distributed.main(["--sizes", "10", "--steps", "2", "--ranks", "1", "2", "--out", str(tmp_path)]) == 0
+    with open(tmp_path / "distributed.csv", newline="") as fh:
+        reader = csv.DictReader(fh)
+        rows = list(reader)
+    assert reader.fieldnames == distributed.COLUMNS and len(rows) == 3
+    assert rows[0]["config"].startswith("serial") and float(rows[0]["diff_to_serial_m"]) == 0.0
+    for r in rows[1:]:
+        assert r["config"].startswith("petsc") and int(r["failed_steps"]) == 0 and float(r["linear_its"]) > 0
+        assert float(r["diff_to_serial_m"]) < 1e-6 and float(r["max_rss_mb"]) > 0 and float(r["step_s"]) > 0

@@ -1,0 +1,168 @@
+"""Distributed backend against the serial path: time per step split into its parts, memory per rank, agreement.
+
+For each cloth size ``n`` (default 256 512; ``benchmark_cloth(n)``, linearized implicit Euler at h = 1/60 s,
+``spd`` Jacobian, linear rtol 1e-6) this runs, one configuration at a time, each in its own processes:
+
+* **serial**: springsim's own path (``auto`` -> AMG-CG with the pyamg hierarchy), ``springsim.simulate``;
+* **petsc, r ranks** for every ``r`` of ``--ranks`` (default 1 2): ``mpiexec -n r`` running
+  :func:`springsim.distributed.simulate_distributed` (KSP CG + GAMG, PETSc options from ``--petsc-options``).
+
+``--steps`` steps each (default 3; the first includes no extra set-up: every step builds its preconditioner).
+Reported per step (rank 0's wall time, averaged over the steps): total, force evaluation, assembly (the local
+COO scatter), insertion into the PETSc matrix (communication of ghost rows included), ghost exchange,
+preconditioner set-up, Krylov solve; linear iterations per step; peak resident memory of every rank
+(``ru_maxrss``); set-up before the first step (partition, pattern, preallocation). **Error**: the largest
+distance [m] between the configuration's final positions and the serial path's, which both solve to the
+same linear tolerance (so it measures the agreement of the two solvers' 1e-6 answers, not an error
+against the ODE: that is the same for both, and ``benchmarks/frame_cost.py`` measures it).
+
+Usage::
+
+    python -m benchmarks distributed                         # n = 256 512, serial and 1, 2 ranks
+    python -m benchmarks distributed --sizes 64 --steps 2    # quick
+    python -m benchmarks distributed --sizes 256 --ranks 1 --petsc-options "-pc_gamg_threshold 0.02"
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .common import RESULTS_DIR, fmt, machine_info, markdown_table, write_csv
+
+__all__ = ["COLUMNS", "main", "worker"]
+
+COLUMNS = ["n", "dofs", "config", "ranks", "steps", "step_s", "force_s", "assembly_s", "insert_s", "exchange_s",
+           "setup_s", "solve_s", "linear_its", "init_s", "max_rss_mb", "diff_to_serial_m", "max_linear_residual",
+           "failed_steps", "petsc_options"]
+
+
+def worker(argv) -> int:
+    """One configuration (``serial`` in one process, or ``petsc`` on every rank of mpiexec); rank 0 writes JSON."""
+    p = argparse.ArgumentParser()
+    p.add_argument("mode", choices=("serial", "petsc"))
+    p.add_argument("n", type=int)
+    p.add_argument("steps", type=int)
+    p.add_argument("out")
+    p.add_argument("--petsc-options", default="")
+    a = p.parse_args(argv)
+    from springsim.scene import benchmark_cloth
+
+    model = benchmark_cloth(a.n)
+    dt = 1.0 / 60.0
+    t0 = time.perf_counter()
+    if a.mode == "serial":
+        from springsim import simulate
+        from springsim.integrators import make_integrator
+
+        integ = make_integrator("linearized_implicit", model, solver="auto", solver_options={"rtol": 1e-6})
+        init = time.perf_counter() - t0
+        traj = simulate(model, integ, dt, a.steps, record=False)
+        rank, rss = 0, [resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024]
+        st = traj.stats
+        parts = dict(force_s=sum(s.force_s for s in st), assembly_s=sum(s.assembly_s for s in st), insert_s=0.0,
+                     exchange_s=0.0, setup_s=float("nan"), solve_s=sum(s.solve_s for s in st))
+        ranks = 1
+        solver = f"serial ({getattr(integ.solver, 'last_choice', None) or integ.solver.name})"
+    else:
+        from mpi4py import MPI
+
+        from springsim.distributed import simulate_distributed
+
+        comm = MPI.COMM_WORLD
+        rank, ranks = comm.Get_rank(), comm.Get_size()
+        traj = simulate_distributed(model, "linearized_implicit", dt, a.steps, record=False, linear_rtol=1e-6,
+                                    petsc_options=a.petsc_options or None, jacobian="spd")
+        rss = comm.gather(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, root=0)
+        init, solver = float("nan"), f"petsc CG+GAMG, {ranks} rank(s)"
+        if rank == 0:
+            st = traj.stats
+            parts = dict(traj.meta["timings"])
+            init = traj.meta.get("init_s", float("nan"))
+    if rank == 0:
+        steps = max(len(st), 1)
+        out = dict(step_s=traj.wall_s / steps, **{k: v / steps for k, v in parts.items()},
+                   linear_its=sum(s.linear_iterations for s in st) / steps, init_s=init, max_rss_mb=max(rss),
+                   rss_mb=rss, ranks=ranks, max_linear_residual=max(s.linear_residual for s in st),
+                   failed_steps=sum(not s.ok for s in st), config=solver)
+        np.save(a.out + ".npy", traj.q[-1])
+        Path(a.out).write_text(json.dumps(out))
+    return 0
+
+
+def _mpiexec(ranks: int) -> list[str]:
+    cmd = ["mpiexec", "--oversubscribe", "--quiet", "-n", str(ranks)]
+    if hasattr(os, "geteuid") and os.geteuid() == 0:
+        cmd.insert(1, "--allow-run-as-root")
+    return cmd
+
+
+def run_config(mode: str, n: int, steps: int, ranks: int, petsc_options: str, tmp: Path) -> dict:
+    out = tmp / f"{mode}_{n}_{ranks}.json"
+    cmd = [sys.executable, "-m", "benchmarks.distributed", "--worker", mode, str(n), str(steps), str(out),
+           "--petsc-options=" + petsc_options]
+    if mode == "petsc":
+        cmd = _mpiexec(ranks) + cmd
+    env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1")
+    subprocess.run(cmd, check=True, env=env, cwd=Path(__file__).resolve().parents[1])
+    r = json.loads(out.read_text())
+    r["q"] = np.load(str(out) + ".npy")
+    return r
+
+
+def main(argv=None) -> int:
+    if argv is None:
+        argv = sys.argv[1:]
+    if argv and argv[0] == "--worker":
+        return worker(argv[1:])
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--sizes", type=int, nargs="*", default=[256, 512], help="cloth sizes n (default 256 512)")
+    p.add_argument("--ranks", type=int, nargs="*", default=[1, 2], help="MPI rank counts (default 1 2)")
+    p.add_argument("--steps", type=int, default=3, help="steps per configuration (default 3)")
+    p.add_argument("--petsc-options", default="", help="PETSc options of the petsc runs")
+    p.add_argument("--no-serial", action="store_true", help="skip the serial path (no agreement column then)")
+    p.add_argument("--out", type=Path, default=RESULTS_DIR)
+    a = p.parse_args(argv)
+    from springsim.distributed import petsc_available
+
+    if not petsc_available() or shutil.which("mpiexec") is None:
+        p.error("needs petsc4py, mpi4py and mpiexec (docs/distributed.md)")
+    if a.steps < 1 or any(r < 1 for r in a.ranks) or any(n < 2 for n in a.sizes):
+        p.error("--steps and --ranks must be >= 1, --sizes >= 2")
+    a.out.mkdir(parents=True, exist_ok=True)
+    print(f"machine: {machine_info()}", flush=True)
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for n in a.sizes:
+            serial = None
+            configs = ([] if a.no_serial else [("serial", 1)]) + [("petsc", r) for r in a.ranks]
+            for mode, ranks in configs:
+                r = run_config(mode, n, a.steps, ranks, a.petsc_options, Path(tmp))
+                if mode == "serial":
+                    serial = r["q"]
+                diff = float(np.abs(r["q"] - serial).max()) if serial is not None else float("nan")
+                row = dict(n=n, dofs=3 * (n * n - n), steps=a.steps, diff_to_serial_m=diff,
+                           petsc_options=a.petsc_options if mode == "petsc" else "",
+                           **{k: r[k] for k in COLUMNS if k in r})
+                rows.append(row)
+                print("  " + ", ".join(f"{k} {fmt(row[k])}" for k in COLUMNS if k in row and row[k] != ""),
+                      flush=True)
+                write_csv(a.out / "distributed.csv", rows, COLUMNS)
+    md = markdown_table(rows, COLUMNS)
+    (a.out / "distributed.md").write_text(md + "\n")
+    print(md)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
