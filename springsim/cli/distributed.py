@@ -51,7 +51,7 @@ def abort_on_error(exc: BaseException) -> None:
 def run_distributed(args, scene, cfg) -> int:
     """Run ``scene`` with the petsc backend as configured (see the module docstring); the exit status."""
     from ..distributed import DISTRIBUTED_INTEGRATORS, import_petsc
-    from .run import _Exit, _provenance, save_or_rescue, summary_rows_distributed, warn_failed_steps
+    from .run import _Exit, _provenance, print_rows, save_or_rescue, summary_rows_distributed, warn_failed_steps
 
     import_petsc()  # BackendUnavailable (a SpringsimError): one line with the install hint
     if cfg.integrator not in DISTRIBUTED_INTEGRATORS:
@@ -92,7 +92,5 @@ def run_distributed(args, scene, cfg) -> int:
         rows = summary_rows_distributed(scene, cfg, traj)
         if args.out is not None:
             rows.append(("output", f"{args.out} ({traj.frame_count} frames)"))
-        w = max(len(k) for k, _ in rows)
-        for k, v in rows:
-            print(f"{k + ':':<{w + 1}} {v}")
+        print_rows(rows)
     return 0

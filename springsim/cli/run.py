@@ -16,7 +16,7 @@ import warnings
 from pathlib import Path
 
 from ..errors import SimulationError, SimulationInterrupted, SpringsimError, SpringsimWarning
-from ..options import MAX_STEPS, SolverConfig
+from ..options import BACKENDS, MAX_STEPS, SolverConfig
 from .argtypes import int_at_least
 
 __all__ = ["run_command", "add_run_options", "load_and_configure", "execute", "configure_logging",
@@ -38,7 +38,7 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
     from ..linsolve import LINEAR_SOLVERS
 
     SolverConfig.add_arguments(p, choices={"integrator": list(INTEGRATORS), "linear_solver": list(LINEAR_SOLVERS),
-                                           "jacobian": list(JACOBIAN_MODES)})
+                                           "jacobian": list(JACOBIAN_MODES), "backend": list(BACKENDS)})
     g = p.add_mutually_exclusive_group()
     g.add_argument("-v", "--verbose", action="count", default=0,
                    help="also log every set-up phase with its time (default: progress every few seconds and "
@@ -141,17 +141,41 @@ def _fmt_s(s: float) -> str:
     return f"{s * 1e6:.1f} us"
 
 
-def summary_lines(scene, cfg, integrator, traj) -> list[tuple[str, str]]:
-    """The rows of the run summary."""
+def _model_rows(scene) -> list[tuple[str, str]]:
     m = scene.model
-    s = traj.summary()
-    rows = [
+    return [
         ("scene", f"{scene.source} ({scene.name})"),
         ("particles", f"{m.particle_count} ({m.free_count} free, {m.particle_count - m.free_count} fixed)"),
         ("springs", str(m.spring_count)),
         ("gravitational pairs", str(m.gravitational_count)),
         ("dofs", str(m.dof_count)),
     ]
+
+
+def _newton_rows(s: dict) -> list[tuple[str, str]]:
+    """Summary rows of an implicit run's iterations and failures (``s``: :meth:`Trajectory.summary`)."""
+    return [
+        ("Newton iterations", f"{s['newton_iterations']:.2f} per step"),
+        ("linear iterations", f"{s['linear_iterations']:.2f} per step"),
+        ("failed steps", f"{s['failed_steps']} (Newton {s['newton_failures']}, linear solves "
+                         f"{s['linear_failures']}, ill-conditioned {s['ill_conditioned']})"),
+        ("solver fallbacks", str(s["fallbacks"])),
+        ("max linear residual", f"{s['max_linear_residual']:.2e}"),
+        ("max precision loss", f"{s['max_precision_loss']:.1e}"),
+    ]
+
+
+def print_rows(rows: list[tuple[str, str]]) -> None:
+    """The summary on stdout, one ``name: value`` row per line, values aligned."""
+    w = max(len(k) for k, _ in rows)
+    for k, v in rows:
+        print(f"{k + ':':<{w + 1}} {v}")
+
+
+def summary_lines(scene, cfg, integrator, traj) -> list[tuple[str, str]]:
+    """The rows of the run summary."""
+    s = traj.summary()
+    rows = _model_rows(scene)
     if integrator.implicit:
         solver = integrator.solver
         chosen = f" -> {solver.last_choice}: {solver.last_reason}" if getattr(solver, "last_choice", None) else ""
@@ -175,14 +199,7 @@ def summary_lines(scene, cfg, integrator, traj) -> list[tuple[str, str]]:
             ("assembly per step", _fmt_s(s["assembly_s"])),
             ("linear solve per step", _fmt_s(s["solve_s"])),
             ("other per step", _fmt_s(s["other_s"])),
-            ("Newton iterations", f"{s['newton_iterations']:.2f} per step"),
-            ("linear iterations", f"{s['linear_iterations']:.2f} per step"),
-            ("failed steps", f"{s['failed_steps']} (Newton {s['newton_failures']}, linear solves "
-                             f"{s['linear_failures']}, ill-conditioned {s['ill_conditioned']})"),
-            ("solver fallbacks", str(s["fallbacks"])),
-            ("max linear residual", f"{s['max_linear_residual']:.2e}"),
-            ("max precision loss", f"{s['max_precision_loss']:.1e}"),
-        ]
+        ] + _newton_rows(s)
     if cfg.adaptive:
         rows.append(("time tolerances", f"time_rtol {cfg.time_rtol or cfg.time_atol:g}, "
                                         f"time_atol {cfg.time_atol or cfg.time_rtol:g}"))
@@ -241,16 +258,10 @@ def _provenance(traj, scene, cfg, scene_path) -> None:
 
 def summary_rows_distributed(scene, cfg, traj) -> list[tuple[str, str]]:
     """The rows of the run summary of a distributed run (``traj.meta`` has the backend's timings)."""
-    m = scene.model
     s = traj.summary()
     meta = traj.meta
     steps = max(s["steps"], 1)
-    rows = [
-        ("scene", f"{scene.source} ({scene.name})"),
-        ("particles", f"{m.particle_count} ({m.free_count} free, {m.particle_count - m.free_count} fixed)"),
-        ("springs", str(m.spring_count)),
-        ("gravitational pairs", str(m.gravitational_count)),
-        ("dofs", str(m.dof_count)),
+    rows = _model_rows(scene) + [
         ("backend", f"petsc, {meta['ranks']} MPI rank(s)"),
         ("integrator", cfg.integrator + (f" (PETSc KSP, jacobian {meta['jacobian']})" if meta["jacobian"] else "")),
         ("steps", f"{s['steps']} x dt = {cfg.dt:g} s"),
@@ -262,14 +273,7 @@ def summary_rows_distributed(scene, cfg, traj) -> list[tuple[str, str]]:
     if tm:
         rows.append(("per step (rank 0)", ", ".join(f"{k[:-2]} {_fmt_s(v / steps)}" for k, v in tm.items() if v)))
     if meta["jacobian"]:
-        rows += [
-            ("Newton iterations", f"{s['newton_iterations']:.2f} per step"),
-            ("linear iterations", f"{s['linear_iterations']:.2f} per step"),
-            ("failed steps", f"{s['failed_steps']} (Newton {s['newton_failures']}, linear solves "
-                             f"{s['linear_failures']}, ill-conditioned {s['ill_conditioned']})"),
-            ("solver retries", str(s["fallbacks"])),
-            ("max linear residual", f"{s['max_linear_residual']:.2e}"),
-        ]
+        rows += _newton_rows(s)
     return rows
 
 
@@ -363,9 +367,7 @@ def _run(args: argparse.Namespace) -> int:
         rows = summary_lines(scene, cfg, integrator, traj)
         if args.out is not None:
             rows.append(("output", f"{args.out} ({traj.frame_count} frames)"))
-        w = max(len(k) for k, _ in rows)
-        for k, v in rows:
-            print(f"{k + ':':<{w + 1}} {v}")
+        print_rows(rows)
     return 0
 
 

@@ -19,7 +19,8 @@ import numpy as np
 
 from ..errors import SceneError, SolverError
 from ..forces import JACOBIAN_MODES
-from ..integrators import PRECISION_LOSS_LIMIT, StepStats
+from ..integrators import StepStats
+from ..integrators._implicit import record_linear_solve, report_stage
 
 __all__ = ["DISTRIBUTED_INTEGRATORS", "DistributedIntegrator", "DistributedExplicitEuler",
            "DistributedSymplecticEuler", "DistributedMidpoint", "DistributedLinearizedImplicit",
@@ -126,16 +127,9 @@ class DistributedImplicitEuler(DistributedIntegrator):
             sysm.assemble(q, v, c * c, c, self.jacobian, exchange=False)  # the residual exchanged (q, v)
             stats.precision_loss = max(stats.precision_loss, sysm.precision_loss())
             res = sysm.solve(R, x0=self._warm if it == 0 else None)
-            stats.solve_s += res.time_s
-            stats.linear_iterations += res.iterations
-            stats.linear_solves += 1
-            stats.linear_residual = max(stats.linear_residual, res.residual)
-            if res.fallback:
-                stats.fallbacks.append(res.fallback)
-            if not sysm.all_finite(res.x):
-                raise SolverError(f"linear solver {res.method!r} failed: non-finite solution")
-            if not res.converged:
-                failed.append(f"linear solve ({res.method}) failed: {res.failure}")
+            failure = record_linear_solve(stats, res, sysm.all_finite(res.x))
+            if failure:
+                failed.append(failure)
             if it == 0:
                 self._warm = res.x
             dv = res.x
@@ -156,23 +150,9 @@ class DistributedImplicitEuler(DistributedIntegrator):
             if converge and step < self.newton_tol and ratio <= self.residual_rtol:
                 converged = True
                 break
-        stats.newton_step_norm, stats.residual_norm, stats.residual_ratio = step, rnorm, ratio
-        if converge:
-            converged = converged and bool(np.isfinite(rnorm))
-            if converged and failed:
-                stats.extra["recovered_linear_failures"] = len(failed)
-                failed = []
-            if not converged:
-                stats.newton_converged = False
-                stats.fail(f"Newton did not converge in {maxiter} iterations (|dv| {step:.1e} m/s, tol "
-                           f"{self.newton_tol:g}; residual ratio {ratio:.1e}, tol {self.residual_rtol:g})")
-        stats.linear_failures += len(failed)
-        for reason in failed:
-            stats.fail(reason)
-        if stats.ill_conditioned:
-            stats.fail(f"ill-conditioned matrix: it holds the masses only to {stats.precision_loss:.1e} "
-                       f"(limit {PRECISION_LOSS_LIMIT:g}); reduce the step or soften the stiffest pairs")
-        return q, v, not failed and (converged or not converge)
+        ok = report_stage(stats, converge=converge, converged=converged, failed=failed, maxiter=maxiter, step=step,
+                          rnorm=rnorm, ratio=ratio, newton_tol=self.newton_tol, residual_rtol=self.residual_rtol)
+        return q, v, ok
 
     def step(self, q, v, dt):
         stats = StepStats(dt)

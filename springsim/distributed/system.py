@@ -35,10 +35,11 @@ import numpy as np
 
 from ..assembly import SystemAssembler
 from ..forces import make_force_terms
+from ..linsolve import LinearSolveResult
 from ._petsc import import_petsc
 from .partition import LocalPart, pair_families, partition
 
-__all__ = ["DistributedSystem", "KSPResult", "owned_row_pattern"]
+__all__ = ["DistributedSystem", "owned_row_pattern"]
 
 
 def owned_row_pattern(model, lo: int, hi: int) -> tuple[np.ndarray, np.ndarray]:
@@ -74,26 +75,6 @@ def _scalar_csr(indptr: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, np.nd
     sptr = np.concatenate([[0], np.cumsum(lengths)])
     idx = np.repeat(starts - sptr[:-1], lengths) + np.arange(sptr[-1])
     return sptr, cols3[idx]
-
-
-@dataclasses.dataclass
-class KSPResult:
-    """One distributed linear solve: ``x`` over the owned DOFs, and how it went (as
-    :class:`~springsim.linsolve.LinearSolveResult`)."""
-
-    x: np.ndarray
-    converged: bool
-    iterations: int
-    residual: float
-    method: str
-    setup_s: float = 0.0
-    solve_s: float = 0.0
-    failure: str | None = None
-    fallback: str | None = None
-
-    @property
-    def time_s(self) -> float:
-        return self.setup_s + self.solve_s
 
 
 class DistributedSystem:
@@ -289,14 +270,13 @@ class DistributedSystem:
         self.A.setNearNullSpace(ns)
         return ns
 
-    def solve(self, rhs_own: np.ndarray, x0: np.ndarray | None = None) -> KSPResult:
+    def solve(self, rhs_own: np.ndarray, x0: np.ndarray | None = None) -> LinearSolveResult:
         """Solve ``A x = rhs`` (owned parts); see the module docstring for the defaults, checks and retry."""
-        PETSc = self.PETSc
         b, x = self.b, self.x
         b.array[:] = rhs_own.ravel()
         bn = b.norm()
         if bn == 0.0:
-            return KSPResult(np.zeros_like(rhs_own), True, 0, 0.0, "petsc")
+            return LinearSolveResult(np.zeros_like(rhs_own), True, 0, 0.0, "petsc")
         ns = self._near_null_space()
         first = self.ksp_type or ("cg" if self.symmetric else "gmres")
         attempts = [(first, self.maxiter), ("gmres", 5 * self.maxiter)]
@@ -334,8 +314,8 @@ class DistributedSystem:
         ok = reason > 0 and np.isfinite(rel) and rel <= 1.01 * target
         failure = None if ok else (f"{method}: relative residual {rel:.2e} above rtol {self.rtol:g} "
                                    f"(PETSc reason {reason}) after the retry")
-        return KSPResult(x.array.reshape(-1, 3).copy(), ok, its, float(rel), method + ("" if fallback is None else
-                         " (retry)"), setup, solve, failure, fallback)
+        return LinearSolveResult(x.array.reshape(-1, 3).copy(), ok, its, float(rel),
+                                 method + ("" if fallback is None else " (retry)"), setup, solve, failure, fallback)
 
     # -- gathering -------------------------------------------------------------------------------------------------
     def gather_full(self, q_own: np.ndarray, v_own: np.ndarray, root: int = 0):

@@ -52,7 +52,58 @@ from ._base import PRECISION_LOSS_LIMIT, Integrator, StepStats
 
 _log = logger.getChild("integrators")
 
-__all__ = ["ImplicitIntegrator"]
+__all__ = ["ImplicitIntegrator", "report_stage", "record_linear_solve"]
+
+
+def record_linear_solve(stats: StepStats, res, finite: bool) -> str | None:
+    """Add a linear solve's cost and outcome to ``stats``; the failure to judge at the stage's end, or None.
+
+    ``finite``: whether the solution is finite everywhere (on every rank, for a distributed solve).
+
+    Raises
+    ------
+    SolverError
+        For a non-finite solution: there is no direction to continue from.
+    """
+    stats.solve_s += res.time_s
+    stats.linear_iterations += res.iterations
+    stats.linear_solves += 1
+    stats.linear_residual = max(stats.linear_residual, res.residual)
+    if res.fallback:
+        stats.fallbacks.append(f"{res.method}: {res.fallback}")
+    if not finite:
+        raise SolverError(f"linear solver {res.method!r} failed: {res.failure or 'non-finite solution'}")
+    return None if res.converged else f"linear solve ({res.method}) failed: {res.failure}"
+
+
+def report_stage(stats: StepStats, *, converge: bool, converged: bool, failed: list, maxiter: int, step: float,
+                 rnorm: float, ratio: float, newton_tol: float, residual_rtol: float) -> bool:
+    """Record the outcome of a Newton stage in ``stats`` (module docstring); whether the stage is ok.
+
+    ``failed``: its failed linear solves. In a stage run to convergence (``converge``) that converged they were
+    inexact Newton directions certified by the stopping rule (counted as recovered); otherwise they fail the step.
+    Ill-conditioning is reported for the step but does not fail the stage: retaking it another way (implicit
+    Euler, a larger c) would only make the conditioning worse.
+    """
+    stats.newton_step_norm = step
+    stats.residual_norm = rnorm
+    stats.residual_ratio = ratio
+    if converge:
+        converged = converged and bool(np.isfinite(rnorm))
+        if converged and failed:
+            stats.extra["recovered_linear_failures"] = stats.extra.get("recovered_linear_failures", 0) + len(failed)
+            failed = []
+        if not converged:
+            stats.newton_converged = False
+            stats.fail(f"Newton did not converge in {maxiter} iterations (|dv| {step:.1e} m/s, tol "
+                       f"{newton_tol:g}; residual ratio {ratio:.1e}, tol {residual_rtol:g})")
+    stats.linear_failures += len(failed)
+    for reason in failed:
+        stats.fail(reason)
+    if stats.ill_conditioned:
+        stats.fail(f"ill-conditioned matrix: it holds the masses only to {stats.precision_loss:.1e} "
+                   f"(limit {PRECISION_LOSS_LIMIT:g}); reduce the step or soften the stiffest pairs")
+    return not failed and (converged or not converge)
 
 
 def _check_count(name: str, value) -> None:
@@ -197,28 +248,9 @@ class ImplicitIntegrator(Integrator):
             # exact one (compressed springs); finish the stage with the exact Jacobian
             stats.extra["jacobian_escalations"] = stats.extra.get("jacobian_escalations", 0) + 1
             q, v, step, rnorm, ratio, converged = self._newton(q_hat, v_hat, c, v, stats, maxiter, converge, "exact")
-        stats.newton_step_norm = step
-        stats.residual_norm = rnorm
-        stats.residual_ratio = ratio
-        failed = self._stage_failures
-        if converge:
-            converged = converged and bool(np.isfinite(rnorm))
-            if converged and failed:  # inexact Newton directions, certified by the stopping rule
-                stats.extra["recovered_linear_failures"] = stats.extra.get("recovered_linear_failures", 0) + len(failed)
-                failed = []
-            if not converged:
-                stats.newton_converged = False
-                stats.fail(f"Newton did not converge in {maxiter} iterations (|dv| {step:.1e} m/s, tol "
-                           f"{self.newton_tol:g}; residual ratio {ratio:.1e}, tol {self.residual_rtol:g})")
-        stats.linear_failures += len(failed)
-        for reason in failed:
-            stats.fail(reason)
-        # ill-conditioning is reported for the step but does not fail the stage: retaking it another way
-        # (implicit Euler, a larger c) would only make the conditioning worse
-        ok = not failed and (converged or not converge)
-        if stats.ill_conditioned:
-            stats.fail(f"ill-conditioned matrix: it holds the masses only to {stats.precision_loss:.1e} "
-                       f"(limit {PRECISION_LOSS_LIMIT:g}); reduce the step or soften the stiffest pairs")
+        ok = report_stage(stats, converge=converge, converged=converged, failed=self._stage_failures, maxiter=maxiter,
+                          step=step, rnorm=rnorm, ratio=ratio, newton_tol=self.newton_tol,
+                          residual_rtol=self.residual_rtol)
         return q, v, ok
 
     def _newton(self, q_hat, v_hat, c, v, stats, maxiter, converge, mode):
@@ -274,16 +306,9 @@ class ImplicitIntegrator(Integrator):
     def _linear_solve(self, A, b, stats, first: bool):
         x0 = self._warm if (first and self._warm is not None and self._warm.shape == b.shape) else None
         res = self.solver.solve(A, b, x0=x0)
-        stats.solve_s += res.time_s
-        stats.linear_iterations += res.iterations
-        stats.linear_solves += 1
-        stats.linear_residual = max(stats.linear_residual, res.residual)
-        if res.fallback:
-            stats.fallbacks.append(f"{res.method}: {res.fallback}")
-        if not np.all(np.isfinite(res.x)):
-            raise SolverError(f"linear solver {res.method!r} failed: {res.failure or 'non-finite solution'}")
-        if not res.converged:
-            self._stage_failures.append(f"linear solve ({res.method}) failed: {res.failure}")
+        failure = record_linear_solve(stats, res, bool(np.all(np.isfinite(res.x))))
+        if failure:
+            self._stage_failures.append(failure)
         if first:
             self._warm = res.x
         return res

@@ -252,3 +252,35 @@ def test_distributed_benchmark_runs(tmp_path):
     for r in rows[1:]:
         assert r["config"].startswith("petsc") and int(r["failed_steps"]) == 0 and float(r["linear_its"]) > 0
         assert float(r["diff_to_serial_m"]) < 1e-6 and float(r["max_rss_mb"]) > 0 and float(r["step_s"]) > 0
+
+
+# -- options (no PETSc needed) -----------------------------------------------------------------------------------
+def test_backend_option_is_validated(tmp_path, capsys):
+    from springsim.cli import main
+
+    cloth = str(ROOT / "scenes" / "cloth_64.yaml")
+    assert main(["run", cloth, "--backend", "nosuch"]) == 2
+    assert "argument --backend: invalid choice: 'nosuch'" in capsys.readouterr().err
+    bad = tmp_path / "b.yaml"
+    bad.write_text("solver: {type: linearized_implicit, timestep: 0.01, backend: mpi}\nbenchmark_cloth: {n: 4}\n")
+    assert main(["run", str(bad)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"springsim: error: {bad}: solver.backend: unknown backend 'mpi'; choose one of serial, petsc"]
+
+
+def test_petsc_options_without_the_backend_are_reported_unused(capsys):
+    from springsim.cli import main
+
+    assert main(["run", str(ROOT / "scenes" / "cloth_64.yaml"), "--steps", "1", "--petsc-options", "-ksp_rtol 1",
+                 "-q"]) == 0
+    assert "does not use petsc_options" in capsys.readouterr().err
+
+
+@pytest.mark.skipif(_REASON is None, reason="petsc4py is importable here")
+def test_petsc_backend_without_petsc_is_one_line(capsys):
+    from springsim.cli import main
+
+    assert main(["run", str(ROOT / "scenes" / "cloth_64.yaml"), "--backend", "petsc", "--steps", "1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("springsim: error: the petsc backend needs petsc4py and mpi4py")
+    assert "docs/distributed.md" in err[0]
