@@ -27,4 +27,5 @@ BENCHMARKS = {
     "blas-threads": "blas_threads",
     "explicit-speed": "explicit_speed",
     "distributed": "distributed",
+    "stiffness-sweep": "stiffness_sweep",
 }

@@ -39,7 +39,15 @@ from ..linsolve import LinearSolveResult
 from ._petsc import import_petsc
 from .partition import LocalPart, pair_families, partition
 
-__all__ = ["DistributedSystem", "owned_row_pattern"]
+__all__ = ["DistributedSystem", "GAMG_DEFAULTS", "owned_row_pattern"]
+
+#: PETSc options springsim sets unless given (``--petsc-options``, ``PETSC_OPTIONS``, the command line).
+#: GAMG's Chebyshev smoothers scale an estimate of the largest eigenvalue of each level by a safety factor
+#: (default 1.1). On the benchmark cloth (n = 256, h = 1/60 s, spd Jacobian) that estimate was low enough on
+#: the third step's matrix for the preconditioner to be indefinite (CG stopped, "indefinite PC", and the GMRES
+#: retry needed 1,500 iterations); 1.3 gave 1, 16 and 15 CG iterations on the first three steps
+#: (docs/distributed.md, "GAMG settings").
+GAMG_DEFAULTS = {"mg_levels_ksp_chebyshev_esteig": "0,0.1,0,1.3"}
 
 
 def owned_row_pattern(model, lo: int, hi: int) -> tuple[np.ndarray, np.ndarray]:
@@ -111,6 +119,10 @@ class DistributedSystem:
         self.ksp_type, self.pc_type = ksp_type, pc_type
         if petsc_options:
             self.insert_options(petsc_options)
+        opts = PETSc.Options()
+        for name, value in GAMG_DEFAULTS.items():  # below whatever the user set, however
+            if not opts.hasName(name):
+                opts[name] = value
 
         # local arrays (owned, ghosts, fixed); the fixed rows are constant
         self.q_loc = np.array(model.particle_q[p.local_particles])
@@ -148,6 +160,7 @@ class DistributedSystem:
         A.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, True)
         A.setLGMap(self.lgmap, self.lgmap)
         self.A = A
+        self._local_csr = None
         self.nnz_local = int(scols.size)
         self.symmetric = True
         self.assembly_version = 0
@@ -222,8 +235,9 @@ class DistributedSystem:
         bsr = m.bsr
         A = self.A
         A.zeroEntries()
-        A.setValuesBlockedLocalCSR(bsr.indptr.astype(self.PETSc.IntType), bsr.indices.astype(self.PETSc.IntType),
-                                   bsr.data.reshape(-1), addv=self.PETSc.InsertMode.ADD_VALUES)
+        if self._local_csr is None:  # the local pattern never changes
+            self._local_csr = (bsr.indptr.astype(self.PETSc.IntType), bsr.indices.astype(self.PETSc.IntType))
+        A.setValuesBlockedLocalCSR(*self._local_csr, bsr.data.reshape(-1), addv=self.PETSc.InsertMode.ADD_VALUES)
         A.assemble()
         self.symmetric = bool(self.mpi.allreduce(bool(m.symmetric), op=self._mpi_land()))
         self.assembly_version += 1

@@ -180,3 +180,22 @@ def test_parse_candidate(fc):
     assert c.implicit and c.steps_per_frame == 4
     e = fc.parse_candidate("verlet:1200:none")
     assert not e.implicit and e.steps_per_frame == 20 and e.label == "verlet h=1/1200"
+
+
+@pytest.mark.slow
+def test_stiffness_sweep_quick(tmp_path):
+    """``python -m benchmarks stiffness-sweep --quick``: one row per (ke, method) with the cheapest configuration
+    within the target, symplectic Euler's substeps growing with the stiffness, and the plot."""
+    from benchmarks import stiffness_sweep as sw
+
+    assert sw.main(["--quick", "--out", str(tmp_path)]) == 0
+    rows, cols = _read(tmp_path / "stiffness_sweep.csv")
+    assert cols == sw.COLUMNS
+    assert {(float(r["ke"]), r["method"]) for r in rows} == {(k, m) for k in (1e3, 1e4) for m in
+                                                           ("symplectic_euler", "linearized_implicit", "tr_bdf2")}
+    se = sorted((r for r in rows if r["method"] == "symplectic_euler"), key=lambda r: float(r["ke"]))
+    assert all(r["reached"] == "True" for r in se) and int(se[0]["se_substeps"]) < int(se[1]["se_substeps"])
+    for r in rows:
+        assert (r["reached"] == "True") == (float(r["err_rms"]) < 0.01) and float(r["cpu_per_frame_s"]) > 0
+    pytest.importorskip("matplotlib")
+    assert (tmp_path / "stiffness_sweep.png").stat().st_size > 1000
