@@ -67,8 +67,9 @@ def option(default=None, *, kind: str, help: str, yaml: str | None = None, cli: 
     ----------
     default
         Value when not given (None: the integrator's or solver's own default).
-    kind : {"name", "float", "int"}
-        A registered name (a string checked by the factory), a finite number, or an integer.
+    kind : {"name", "float", "int", "options"}
+        A registered name (a string checked by the factory), a finite number, an integer, or options passed
+        through to another library (a string, or a mapping of names to scalars).
     help : str
         One line for ``--help`` and the docs.
     yaml : str, optional
@@ -94,6 +95,16 @@ def _check(f, value, where: str):
     if value is None:
         return None
     kind = m["kind"]
+    if kind == "options":  # a string of "-name value" pairs, or a mapping name -> scalar
+        if isinstance(value, dict):
+            for k, v in value.items():
+                if not isinstance(k, str) or not (v is None or isinstance(v, (str, int, float, bool))):
+                    raise SceneTypeError(f"{where}.{k}", f"must be a string, number or boolean, got "
+                                                        f"{type(v).__name__}")
+            return dict(value)
+        if not isinstance(value, str):
+            raise SceneTypeError(where, f"must be a string or a mapping, got {type(value).__name__} {value!r:.60}")
+        return value
     if kind == "name":
         if not isinstance(value, str):
             raise SceneTypeError(where, f"must be a name, got {type(value).__name__} {value!r:.60}")
@@ -165,9 +176,10 @@ class SolverConfig:
     backend: str | None = option(None, kind="name", cli="--backend", metavar="NAME",
                                  help="serial (default) or petsc: distributed assembly and solves on PETSc, run under "
                                       "mpiexec (docs/distributed.md)")
-    petsc_options: str | None = option(None, kind="name", cli="--petsc-options", metavar="OPTS",
-                                       help="PETSc options of the petsc backend, e.g. '-ksp_type gmres "
-                                            "-pc_gamg_threshold 0.02' (PETSC_OPTIONS applies too)")
+    petsc_options: str | dict | None = option(None, kind="options", cli="--petsc-options", metavar="OPTS",
+                                              help="PETSc options of the petsc backend, e.g. '-ksp_type gmres "
+                                                   "-pc_gamg_threshold 0.02' (in YAML also a mapping; PETSC_OPTIONS "
+                                                   "applies too)")
 
     def __post_init__(self):
         self.validate()
@@ -257,7 +269,7 @@ class SolverConfig:
 
             def convert(text, f=f):
                 kind = f.metadata["kind"]
-                if kind == "name":
+                if kind in ("name", "options"):
                     return text
                 what = "an integer" if kind == "int" else "a number"
                 if len(text) > 40:

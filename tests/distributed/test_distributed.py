@@ -284,3 +284,17 @@ def test_petsc_backend_without_petsc_is_one_line(capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("springsim: error: the petsc backend needs petsc4py and mpi4py")
     assert "docs/distributed.md" in err[0]
+
+
+def test_petsc_options_yaml_mapping_or_string():
+    from springsim.errors import SceneError
+    from springsim.scene import load_scene
+
+    base = "particles: [{pos: [0, 0, 0], mass: 1}]\nsolver: {type: linearized_implicit, timestep: 0.01, backend: petsc, "
+    cfg = load_scene(base + "petsc_options: {ksp_type: gmres, pc_gamg_threshold: 0.02}}").config
+    assert cfg.backend == "petsc" and cfg.petsc_options == {"ksp_type": "gmres", "pc_gamg_threshold": 0.02}
+    assert load_scene(base + "petsc_options: '-ksp_type gmres'}").config.petsc_options == "-ksp_type gmres"
+    with pytest.raises(SceneError, match=r"solver.petsc_options.ksp_type: must be a string, number or boolean"):
+        load_scene(base + "petsc_options: {ksp_type: [1, 2]}}")
+    with pytest.raises(SceneError, match=r"solver.petsc_options: must be a string or a mapping, got list"):
+        load_scene(base + "petsc_options: [1]}")

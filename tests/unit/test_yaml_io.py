@@ -319,7 +319,7 @@ def test_options_are_declared_once():
     flags = {a.dest for a in p._actions}
     for f in dataclasses.fields(SolverConfig):
         m = f.metadata
-        assert m["help"] and m["kind"] in ("name", "float", "int")
+        assert m["help"] and m["kind"] in ("name", "float", "int", "options")
         assert (f.name in flags) == bool(m["cli"])
     cfg = load_scene("solver: {type: bdf2, timestep: 0.01, residual_rtol: 1.0e-4, linear_rtol: 1.0e-7, "
                      "newton_maxiter: 7}\nparticles: [{pos: [0,0,0], mass: 1}]").config
