@@ -15,19 +15,20 @@ on the benchmark cloth). The Jacobian mode defaults to ``spd``.
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
+
 import numpy as np
 
 from ..errors import SceneError, SolverError
-from ..forces import JACOBIAN_MODES
 from ..integrators import StepStats
-from ..integrators._implicit import record_linear_solve, report_stage
+from ..integrators._implicit import check_newton_options, record_linear_solve, report_stage
 
 __all__ = ["DISTRIBUTED_INTEGRATORS", "DistributedIntegrator", "DistributedExplicitEuler",
            "DistributedSymplecticEuler", "DistributedMidpoint", "DistributedLinearizedImplicit",
            "DistributedImplicitEuler", "make_distributed_integrator"]
 
 
-class DistributedIntegrator:
+class DistributedIntegrator(ABC):
     """Base: :meth:`step` ``(q, v, dt) -> (q1, v1, StepStats)`` over the owned arrays of ``system``."""
 
     name = ""
@@ -40,8 +41,9 @@ class DistributedIntegrator:
     def acceleration(self, q, v):
         return self.system.forces(q, v) * self.inv_mass
 
-    def step(self, q, v, dt):  # pragma: no cover - abstract
-        raise NotImplementedError
+    @abstractmethod
+    def step(self, q, v, dt):
+        """Advance the owned state ``(q, v)`` by ``dt``: ``(q1, v1, StepStats)``."""
 
 
 class DistributedExplicitEuler(DistributedIntegrator):
@@ -88,17 +90,11 @@ class DistributedImplicitEuler(DistributedIntegrator):
                  min_step: float = 1.0 / 64, on_nonconvergence: str = "warn"):
         super().__init__(system)
         jacobian = "spd" if jacobian is None else jacobian
-        if jacobian not in JACOBIAN_MODES:
-            raise SceneError("jacobian", f"must be one of {', '.join(JACOBIAN_MODES)}, got {jacobian!r}")
-        if not newton_tol > 0:
-            raise SceneError("newton_tol", f"must be > 0, got {newton_tol}")
-        if not residual_rtol > 0:
-            raise SceneError("residual_rtol", f"must be > 0, got {residual_rtol}")
-        if on_nonconvergence not in ("warn", "raise", "ignore"):
-            raise ValueError(f"on_nonconvergence must be warn, raise or ignore, got {on_nonconvergence!r}")
+        newton_maxiter = 5 if newton_maxiter is None else newton_maxiter
+        check_newton_options(jacobian, newton_tol, newton_maxiter, residual_rtol, on_nonconvergence)
         self.jacobian = jacobian
         self.newton_tol = float(newton_tol)
-        self.newton_maxiter = 5 if newton_maxiter is None else int(newton_maxiter)
+        self.newton_maxiter = int(newton_maxiter)
         self.residual_rtol = float(residual_rtol)
         self.line_search = bool(line_search)
         self.min_step = float(min_step)

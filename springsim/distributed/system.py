@@ -106,7 +106,7 @@ class DistributedSystem:
     def __init__(self, model, comm=None, *, rtol: float = 1e-6, atol: float = 0.0, maxiter: int = 1000,
                  petsc_options=None, ksp_type: str | None = None, pc_type: str = "gamg"):
         PETSc, MPI = import_petsc()
-        self.PETSc = PETSc
+        self.PETSc, self.MPI = PETSc, MPI
         self.comm = PETSc.COMM_WORLD if comm is None else comm
         self.mpi = self.comm.tompi4py()
         self.rank, self.size = self.comm.getRank(), self.comm.getSize()
@@ -185,12 +185,7 @@ class DistributedSystem:
     def all_finite(self, *arrays) -> bool:
         """Whether ``arrays`` are finite on every rank."""
         ok = all(bool(np.all(np.isfinite(a))) for a in arrays)
-        return bool(self.mpi.allreduce(ok, op=self._mpi_land()))
-
-    def _mpi_land(self):
-        from mpi4py import MPI
-
-        return MPI.LAND
+        return bool(self.mpi.allreduce(ok, op=self.MPI.LAND))
 
     # -- ghosts, forces ------------------------------------------------------------------------------------------
     def exchange(self, q_own: np.ndarray, v_own: np.ndarray) -> None:
@@ -239,7 +234,7 @@ class DistributedSystem:
             self._local_csr = (bsr.indptr.astype(self.PETSc.IntType), bsr.indices.astype(self.PETSc.IntType))
         A.setValuesBlockedLocalCSR(*self._local_csr, bsr.data.reshape(-1), addv=self.PETSc.InsertMode.ADD_VALUES)
         A.assemble()
-        self.symmetric = bool(self.mpi.allreduce(bool(m.symmetric), op=self._mpi_land()))
+        self.symmetric = bool(self.mpi.allreduce(bool(m.symmetric), op=self.MPI.LAND))
         self.assembly_version += 1
         self._positions = q_own
         self.timings["assembly_s"] += t1 - t0
@@ -260,9 +255,7 @@ class DistributedSystem:
             ratio = np.abs(d.array.reshape(-1, 3)).max(axis=1) / self.mass
             local = float(np.finfo(np.float64).eps * ratio.max())
         d.destroy()
-        from mpi4py import MPI
-
-        return float(self.mpi.allreduce(local, op=MPI.MAX))
+        return float(self.mpi.allreduce(local, op=self.MPI.MAX))
 
     # -- solve -----------------------------------------------------------------------------------------------------
     def _ksp(self, ksp_type: str, maxiter: int, x0_nonzero: bool):

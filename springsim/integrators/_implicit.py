@@ -52,7 +52,21 @@ from ._base import PRECISION_LOSS_LIMIT, Integrator, StepStats
 
 _log = logger.getChild("integrators")
 
-__all__ = ["ImplicitIntegrator", "report_stage", "record_linear_solve"]
+__all__ = ["ImplicitIntegrator", "check_newton_options", "report_stage", "record_linear_solve"]
+
+
+def check_newton_options(jacobian: str, newton_tol, newton_maxiter, residual_rtol, on_nonconvergence: str) -> None:
+    """Validate the options of a Newton stage solver; a SceneError naming the parameter (ValueError for
+    ``on_nonconvergence``, a programming choice rather than scene input)."""
+    if jacobian not in JACOBIAN_MODES:
+        raise SceneError("jacobian", f"must be one of {', '.join(JACOBIAN_MODES)}, got {jacobian!r}")
+    if not newton_tol > 0:
+        raise SceneError("newton_tol", f"must be > 0, got {newton_tol}")
+    if not residual_rtol > 0:
+        raise SceneError("residual_rtol", f"must be > 0, got {residual_rtol}")
+    _check_count("newton_maxiter", newton_maxiter)
+    if on_nonconvergence not in ("warn", "raise", "ignore"):
+        raise ValueError(f"on_nonconvergence must be warn, raise or ignore, got {on_nonconvergence!r}")
 
 
 def record_linear_solve(stats: StepStats, res, finite: bool) -> str | None:
@@ -173,17 +187,9 @@ class ImplicitIntegrator(Integrator):
         self.solver = make_linear_solver(solver, **(solver_options or {}))
         if jacobian is None:
             jacobian = "spd" if self.solver.needs_spd_for(3 * model.free_count) else "exact"
-        if jacobian not in JACOBIAN_MODES:
-            raise SceneError("jacobian", f"must be one of {', '.join(JACOBIAN_MODES)}, got {jacobian!r}")
-        if not newton_tol > 0:
-            raise SceneError("newton_tol", f"must be > 0, got {newton_tol}")
-        if not residual_rtol > 0:
-            raise SceneError("residual_rtol", f"must be > 0, got {residual_rtol}")
         if newton_maxiter is None:
             newton_maxiter = self.default_newton_maxiter
-        _check_count("newton_maxiter", newton_maxiter)
-        if on_nonconvergence not in ("warn", "raise", "ignore"):
-            raise ValueError(f"on_nonconvergence must be warn, raise or ignore, got {on_nonconvergence!r}")
+        check_newton_options(jacobian, newton_tol, newton_maxiter, residual_rtol, on_nonconvergence)
         self.jacobian = jacobian
         self.newton_tol = float(newton_tol)
         self.newton_maxiter = int(newton_maxiter)
