@@ -176,6 +176,10 @@ class SolverConfig:
     backend: str | None = option(None, kind="name", cli="--backend", metavar="NAME",
                                  help="serial (default) or petsc: distributed assembly and solves on PETSc, run under "
                                       "mpiexec (docs/distributed.md)")
+    partitioner: str | None = option(None, kind="name", cli="--partitioner", metavar="NAME",
+                                     help="petsc backend: how the particles are split over the ranks: contiguous "
+                                          "(default; blocks of the serial numbering) or a graph partitioner of "
+                                          "PETSc (ptscotch, parmetis)")
     petsc_options: str | dict | None = option(None, kind="options", cli="--petsc-options", metavar="OPTS",
                                               help="PETSc options of the petsc backend, e.g. '-ksp_type gmres "
                                                    "-pc_gamg_threshold 0.02' (in YAML also a mapping; PETSC_OPTIONS "
@@ -220,6 +224,12 @@ class SolverConfig:
         if self.backend is not None and self.backend not in BACKENDS:
             raise SceneError("solver.backend", f"unknown backend {self.backend!r:.60}; choose one of "
                                                f"{', '.join(BACKENDS)}")
+        if self.partitioner is not None:
+            from .distributed.partition import PARTITIONERS
+
+            if self.partitioner not in PARTITIONERS:
+                raise SceneError("solver.partitioner", f"unknown partitioner {self.partitioner!r:.60}; choose one "
+                                                       f"of {', '.join(PARTITIONERS)}")
         if self.jacobian is not None:
             from .forces import JACOBIAN_MODES
 
@@ -344,8 +354,9 @@ class SolverConfig:
             out.append("linear_rtol")
         if self.max_step is not None and not self.adaptive:
             out.append("max_step")
-        if self.petsc_options is not None and self.backend != "petsc":
-            out.append("petsc_options")
+        for name in ("petsc_options", "partitioner"):
+            if getattr(self, name) is not None and self.backend != "petsc":
+                out.append(name)
         return sorted(set(out))
 
     def make_integrator(self, model):

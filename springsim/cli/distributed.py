@@ -71,7 +71,8 @@ def run_distributed(args, scene, cfg) -> int:
     try:
         traj = simulate_distributed(scene.model, cfg.integrator, cfg.dt, cfg.run_steps(), frame_every=args.frame_every,
                                     record=record, progress=as_progress(True), linear_rtol=rtol,
-                                    petsc_options=cfg.petsc_options, **opts)
+                                    petsc_options=cfg.petsc_options, partitioner=cfg.partitioner or "contiguous",
+                                    **opts)
     except SimulationError as e:
         if e.trajectory is None:  # not the root rank: the root reports
             raise _Exit(1) from None

@@ -33,12 +33,14 @@ class _Exit(Exception):
 
 def add_run_options(p: argparse.ArgumentParser) -> None:
     """The flags of every command that runs a scene: one per :class:`SolverConfig` field that declares one."""
+    from ..distributed.partition import PARTITIONERS
     from ..forces import JACOBIAN_MODES
     from ..integrators import INTEGRATORS
     from ..linsolve import LINEAR_SOLVERS
 
     SolverConfig.add_arguments(p, choices={"integrator": list(INTEGRATORS), "linear_solver": list(LINEAR_SOLVERS),
-                                           "jacobian": list(JACOBIAN_MODES), "backend": list(BACKENDS)})
+                                           "jacobian": list(JACOBIAN_MODES), "backend": list(BACKENDS),
+                                           "partitioner": list(PARTITIONERS)})
     g = p.add_mutually_exclusive_group()
     g.add_argument("-v", "--verbose", action="count", default=0,
                    help="also log every set-up phase with its time (default: progress every few seconds and "

@@ -28,13 +28,14 @@ class DistributedRun:
     """A distributed run's system, integrator, owned state and recorded frames (on ``root``)."""
 
     def __init__(self, model, integrator: str, *, comm=None, linear_rtol: float = 1e-6, linear_maxiter: int = 1000,
-                 petsc_options=None, check_energy: bool = True, root: int = 0, **options):
+                 petsc_options=None, check_energy: bool = True, root: int = 0, partitioner: str = "contiguous",
+                 **options):
         self.model = model
         self.system = DistributedSystem(model, comm, rtol=linear_rtol, maxiter=linear_maxiter,
-                                        petsc_options=petsc_options)
+                                        petsc_options=petsc_options, partitioner=partitioner)
         self.integrator = make_distributed_integrator(integrator, self.system, **options)
         s, p = self.system, self.system.part
-        own = model.free_particles[p.lo:p.hi]
+        own = p.local_particles[:p.n_own]
         self.q = np.array(model.particle_q[own])
         self.v = np.array(model.particle_qd[own])
         self.root = root
@@ -88,7 +89,8 @@ class DistributedRun:
 
 def simulate_distributed(model, integrator: str, dt: float, steps: int, *, comm=None, frame_every: int = 1,
                          record: bool = True, progress=None, check_energy: bool = True, linear_rtol: float = 1e-6,
-                         linear_maxiter: int = 1000, petsc_options=None, root: int = 0, **options):
+                         linear_maxiter: int = 1000, petsc_options=None, root: int = 0,
+                         partitioner: str = "contiguous", **options):
     """Run ``steps`` steps of ``integrator`` on every rank of ``comm`` (default ``PETSc.COMM_WORLD``).
 
     Parameters
@@ -106,6 +108,9 @@ def simulate_distributed(model, integrator: str, dt: float, steps: int, *, comm=
         ``PETSC_OPTIONS``' apply too.
     root : int
         The rank that gathers the frames.
+    partitioner : str
+        ``contiguous`` (default) or a graph partitioner of PETSc (``ptscotch``, ``parmetis``), see
+        :class:`~springsim.distributed.system.DistributedSystem`.
     **options
         Options of the implicit integrators: ``jacobian`` (default ``spd``), ``newton_tol``, ``newton_maxiter``,
         ``residual_rtol``, ``line_search``, ``min_step``, ``on_nonconvergence``.
@@ -125,7 +130,8 @@ def simulate_distributed(model, integrator: str, dt: float, steps: int, *, comm=
     frame_every = _count("frame_every", frame_every, 1)
     t_init = time.perf_counter()
     run = DistributedRun(model, integrator, comm=comm, linear_rtol=linear_rtol, linear_maxiter=linear_maxiter,
-                         petsc_options=petsc_options, check_energy=check_energy, root=root, **options)
+                         petsc_options=petsc_options, check_energy=check_energy, root=root,
+                         partitioner=partitioner, **options)
     progress = as_progress(progress) if run.is_root else None
     from .. import __version__
 
@@ -133,7 +139,8 @@ def simulate_distributed(model, integrator: str, dt: float, steps: int, *, comm=
     meta = {"springsim_version": __version__, "model_fingerprint": model.fingerprint(),
             "scene": model.metadata.get("name"), "source": model.metadata.get("source"), "integrator": integ.name,
             "linear_solver": "petsc" if integ.implicit else None, "jacobian": getattr(integ, "jacobian", None),
-            "backend": "petsc", "ranks": run.system.size, "dt": dt, "steps": steps, "frame_every": frame_every,
+            "backend": "petsc", "ranks": run.system.size, "partitioner": partitioner, "dt": dt, "steps": steps,
+            "frame_every": frame_every,
             "init_s": time.perf_counter() - t_init}
     wall0, cpu0 = time.perf_counter(), time.process_time()
     k = 0

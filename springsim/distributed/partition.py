@@ -1,9 +1,11 @@
 """Partition of a model across MPI ranks: owned particles, owned pairs, ghosts and the local models.
 
-The unknowns of the distributed system are the free particles in the order of the serial system
-(:attr:`springsim.assembly.SystemAssembler.free`: free particle ``k`` is block row ``k``), split into
-contiguous blocks, one per rank (:func:`contiguous_offsets`). So the distributed matrix, gathered, is the
-serial matrix in the same order, and frames gathered in rank order are the free particles in order.
+The unknowns of the distributed system are the free particles, by default in the order of the serial
+system (:attr:`springsim.assembly.SystemAssembler.free`: free particle ``k`` is block row ``k``), split
+into contiguous blocks, one per rank (:func:`contiguous_offsets`). So the distributed matrix, gathered, is
+the serial matrix in the same order, and frames gathered in rank order are the free particles in order.
+A graph partition renumbers them (``order``, :func:`system_order`) so that each rank's block is one of its
+parts; the gathered matrix is then the serial one with rows and columns permuted alike.
 
 A pair (a spring, a gravitational pair) belongs to the rank that owns its first particle, or its second
 when the first is fixed; pairs between two fixed particles are dropped (they never move anything). A
@@ -29,7 +31,12 @@ import numpy as np
 
 from ..model import Model
 
-__all__ = ["contiguous_offsets", "pair_families", "LocalPart", "partition"]
+__all__ = ["PARTITIONERS", "contiguous_offsets", "pair_families", "system_order", "LocalPart", "partition"]
+
+#: How the free particles are split over the ranks: ``contiguous`` (equal blocks of the serial order), or a
+#: PETSc ``MatPartitioning`` type that partitions the particle graph (``ptscotch``, ``parmetis``: whichever the
+#: PETSc build has; Debian's has PT-Scotch).
+PARTITIONERS = ("contiguous", "ptscotch", "parmetis")
 
 
 def contiguous_offsets(count: int, size: int) -> np.ndarray:
@@ -68,7 +75,9 @@ class LocalPart:
         Global particle ids of the local particles: owned, ghosts, fixed.
     n_own, n_ghost : int
     local_to_free : ndarray (L,)
-        Global free index (system block row) of each local particle, -1 for fixed ones.
+        System block row of each local particle, -1 for fixed ones.
+    order : ndarray (F,) or None
+        The permutation of the free particles that numbers the system (None: the serial order).
     owned_pairs : dict
         Global indices of the owned pairs of each family (``spring``, ``gravitational``).
     pair_model, particle_model : Model
@@ -84,6 +93,7 @@ class LocalPart:
     owned_pairs: dict
     pair_model: Model
     particle_model: Model
+    order: np.ndarray | None = None
 
     @property
     def lo(self) -> int:
@@ -125,12 +135,31 @@ def _sub_model(model: Model, particles: np.ndarray, pairs: dict, *, keep_particl
                  pair_epsilon=model.pair_epsilon, metadata=dict(model.metadata))
 
 
-def partition(model: Model, size: int, rank: int, offsets: np.ndarray | None = None) -> LocalPart:
-    """Rank ``rank``'s part of ``model`` split over ``size`` ranks (contiguous free blocks unless ``offsets``)."""
+def system_order(model: Model, order: np.ndarray | None = None) -> np.ndarray:
+    """The free particles in the order of the distributed system's block rows: ``model.free_particles``, or
+    ``model.free_particles[order]`` for a permutation ``order`` of them (a graph partition's numbering)."""
+    free = model.free_particles
+    if order is None:
+        return free
+    order = np.asarray(order, dtype=np.int64)
+    if order.shape != free.shape or not np.array_equal(np.sort(order), np.arange(free.size)):
+        raise ValueError(f"order must be a permutation of the {free.size} free particles")
+    return free[order]
+
+
+def partition(model: Model, size: int, rank: int, offsets: np.ndarray | None = None,
+              order: np.ndarray | None = None) -> LocalPart:
+    """Rank ``rank``'s part of ``model`` split over ``size`` ranks.
+
+    Block row ``k`` of the system is free particle ``system_order(model, order)[k]`` (the serial order unless
+    ``order``); rank ``r`` owns rows ``offsets[r] .. offsets[r+1]`` (equal contiguous blocks unless ``offsets``).
+    """
     if not 0 <= rank < size:
         raise ValueError(f"rank must be in [0, {size}), got {rank}")
-    free = model.free_particles
+    free = system_order(model, order)
     offsets = contiguous_offsets(free.size, size) if offsets is None else np.asarray(offsets, dtype=np.int64)
+    if offsets.shape != (size + 1,) or offsets[0] != 0 or offsets[-1] != free.size or np.any(np.diff(offsets) < 0):
+        raise ValueError(f"offsets must rise from 0 to {free.size} in {size} blocks")
     free_index = np.full(model.particle_count, -1, dtype=np.int64)
     free_index[free] = np.arange(free.size)
     owner = np.full(model.particle_count, -1, dtype=np.int64)  # owning rank of each free particle
@@ -156,4 +185,5 @@ def partition(model: Model, size: int, rank: int, offsets: np.ndarray | None = N
     return LocalPart(rank=rank, size=size, offsets=offsets, local_particles=local_particles, n_own=int(owned.size),
                      n_ghost=int(ghosts.size), local_to_free=free_index[local_particles], owned_pairs=owned_pairs,
                      pair_model=_sub_model(model, local_particles, owned_pairs, keep_particle_terms=False),
-                     particle_model=_sub_model(model, owned, {}, keep_particle_terms=True))
+                     particle_model=_sub_model(model, owned, {}, keep_particle_terms=True),
+                     order=None if order is None else np.asarray(order, dtype=np.int64))

@@ -34,12 +34,13 @@ import time
 import numpy as np
 
 from ..assembly import SystemAssembler
+from ..errors import SceneError
 from ..forces import make_force_terms
 from ..linsolve import LinearSolveResult
 from ._petsc import import_petsc
-from .partition import LocalPart, pair_families, partition
+from .partition import PARTITIONERS, LocalPart, contiguous_offsets, pair_families, partition, system_order
 
-__all__ = ["DistributedSystem", "GAMG_DEFAULTS", "owned_row_pattern"]
+__all__ = ["DistributedSystem", "GAMG_DEFAULTS", "graph_partition", "owned_row_pattern"]
 
 #: PETSc options springsim sets unless given (``--petsc-options``, ``PETSC_OPTIONS``, the command line).
 #: GAMG's Chebyshev smoothers scale an estimate of the largest eigenvalue of each level by a safety factor
@@ -50,13 +51,14 @@ __all__ = ["DistributedSystem", "GAMG_DEFAULTS", "owned_row_pattern"]
 GAMG_DEFAULTS = {"mg_levels_ksp_chebyshev_esteig": "0,0.1,0,1.3"}
 
 
-def owned_row_pattern(model, lo: int, hi: int) -> tuple[np.ndarray, np.ndarray]:
-    """Block pattern of the system rows ``lo .. hi`` (free indices): ``(indptr, cols)``, columns sorted.
+def owned_row_pattern(model, lo: int, hi: int, order: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Block pattern of the system rows ``lo .. hi``: ``(indptr, cols)``, columns sorted (rows numbered as
+    :func:`~springsim.distributed.partition.system_order` with ``order`` says).
 
     Row ``k`` holds ``k`` and every free particle paired with it in any pair list; it is symmetric, so each
     rank computes the exact pattern of its rows, entries other ranks send included, from the pair lists.
     """
-    free = model.free_particles
+    free = system_order(model, order)
     F = free.size
     fi = np.full(model.particle_count, -1, dtype=np.int64)
     fi[free] = np.arange(F)
@@ -85,6 +87,34 @@ def _scalar_csr(indptr: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, np.nd
     return sptr, cols3[idx]
 
 
+def graph_partition(model, comm, method: str) -> tuple[np.ndarray, np.ndarray]:
+    """``(order, offsets)``: a partition of the free-particle graph (an edge per pair) into one part per rank by
+    PETSc's ``MatPartitioning`` of type ``method``, as a renumbering of the free particles (part by part, the
+    serial order kept within a part) and the parts' row offsets. Collective over ``comm``."""
+    PETSc, MPI = import_petsc()
+    size, rank = comm.getSize(), comm.getRank()
+    F = int(model.free_count)
+    lo, hi = (int(x) for x in contiguous_offsets(F, size)[rank:rank + 2])
+    indptr, cols = owned_row_pattern(model, lo, hi)
+    rows = np.repeat(np.arange(lo, hi), np.diff(indptr))
+    off = cols != rows  # the adjacency has no diagonal
+    adj_ptr = np.concatenate([[0], np.cumsum(np.bincount(rows[off] - lo, minlength=hi - lo))])
+    adj = PETSc.Mat().createAIJ(((hi - lo, F), (hi - lo, F)), comm=comm,
+                                csr=(adj_ptr.astype(PETSc.IntType), cols[off].astype(PETSc.IntType),
+                                     np.ones(int(off.sum()))))
+    mp = PETSc.MatPartitioning().create(comm=comm)
+    mp.setType(method)
+    mp.setAdjacency(adj)
+    mp.setFromOptions()
+    part = PETSc.IS()
+    mp.apply(part)
+    owner = np.concatenate(comm.tompi4py().allgather(np.array(part.getIndices(), dtype=np.int64)))
+    for obj in (part, mp, adj):
+        obj.destroy()
+    order = np.argsort(owner, kind="stable")
+    return order, np.concatenate([[0], np.cumsum(np.bincount(owner, minlength=size))])
+
+
 class DistributedSystem:
     """Rank-local part of the distributed system of ``model`` (build it on every rank of ``comm``).
 
@@ -101,10 +131,15 @@ class DistributedSystem:
         options database before the solver reads it.
     ksp_type, pc_type : str
         Defaults before the options database (``cg`` or ``gmres`` by the matrix symmetry when None; ``gamg``).
+    partitioner : str
+        One of :data:`PARTITIONERS`: ``contiguous`` (default) keeps the serial numbering, so the gathered matrix
+        is the serial one; a graph partitioner gives each rank a compact part of the particle graph (fewer
+        ghosts on scenes numbered at random) and numbers the system part by part.
     """
 
     def __init__(self, model, comm=None, *, rtol: float = 1e-6, atol: float = 0.0, maxiter: int = 1000,
-                 petsc_options=None, ksp_type: str | None = None, pc_type: str = "gamg"):
+                 petsc_options=None, ksp_type: str | None = None, pc_type: str = "gamg",
+                 partitioner: str = "contiguous"):
         PETSc, MPI = import_petsc()
         self.PETSc, self.MPI = PETSc, MPI
         self.comm = PETSc.COMM_WORLD if comm is None else comm
@@ -112,7 +147,17 @@ class DistributedSystem:
         self.rank, self.size = self.comm.getRank(), self.comm.getSize()
         self.model = model
         t0 = time.perf_counter()
-        self.part: LocalPart = partition(model, self.size, self.rank)
+        if partitioner not in PARTITIONERS:
+            raise SceneError("partitioner", f"must be one of {', '.join(PARTITIONERS)}, got {partitioner!r:.60}")
+        order = offsets = None
+        if partitioner != "contiguous":
+            try:
+                order, offsets = graph_partition(model, self.comm, partitioner)
+            except PETSc.Error as e:
+                raise SceneError("partitioner", f"PETSc's MatPartitioning {partitioner!r} failed (error code "
+                                                f"{e.ierr}); is it in this PETSc build?") from None
+        self.part: LocalPart = partition(model, self.size, self.rank, offsets=offsets, order=order)
+        self.system_particles = system_order(model, order)
         p = self.part
         self.free_count = int(model.free_count)
         self.rtol, self.atol, self.maxiter = float(rtol), float(atol), int(maxiter)
@@ -151,7 +196,7 @@ class DistributedSystem:
         self.lgmap = PETSc.LGMap().create(p.local_to_free[:nlf].astype(PETSc.IntType), bsize=3, comm=self.comm)
 
         # the matrix, preallocated exactly from the global pattern of the owned rows
-        indptr, cols = owned_row_pattern(model, p.lo, p.hi)
+        indptr, cols = owned_row_pattern(model, p.lo, p.hi, order)
         sptr, scols = _scalar_csr(indptr, cols)
         A = PETSc.Mat().create(comm=self.comm)
         A.setSizes(((own3, F3), (own3, F3)), bsize=3)
@@ -327,7 +372,7 @@ class DistributedSystem:
     # -- gathering -------------------------------------------------------------------------------------------------
     def gather_full(self, q_own: np.ndarray, v_own: np.ndarray, root: int = 0):
         """Full (N, 3) positions and velocities on ``root`` (None elsewhere): the owned arrays of every rank in
-        rank order are the free particles in order; fixed particles from the model."""
+        rank order are the free particles in the system's order; fixed particles from the model."""
         counts = self.mpi.gather(3 * q_own.shape[0], root=root)
         out = []
         for own, init in ((q_own, self.model.particle_q), (v_own, None)):
@@ -335,7 +380,7 @@ class DistributedSystem:
                 buf = np.empty(3 * self.free_count)
                 self.mpi.Gatherv(np.ascontiguousarray(own).ravel(), (buf, counts), root=root)
                 full = np.array(init) if init is not None else np.zeros((self.model.particle_count, 3))
-                full[self.model.free_particles] = buf.reshape(-1, 3)
+                full[self.system_particles] = buf.reshape(-1, 3)
                 out.append(full)
             else:
                 self.mpi.Gatherv(np.ascontiguousarray(own).ravel(), None, root=root)

@@ -16,21 +16,21 @@ def _state(model, seed=7):
     return q, v
 
 
-def trajectory(scene, integrator, dt, steps, out):
+def trajectory(scene, integrator, dt, steps, out, partitioner="contiguous"):
     from springsim.distributed import simulate_distributed
 
     from .scenes import scene as make
 
     opts = {} if integrator in ("explicit_euler", "symplectic_euler", "midpoint") else dict(jacobian="spd")
     traj = simulate_distributed(make(scene), integrator, float(dt), int(steps), linear_rtol=1e-10,
-                                on_nonconvergence="ignore", **opts)
+                                on_nonconvergence="ignore", partitioner=partitioner, **opts)
     if traj is not None:
         np.savez(out, q=traj.q, qd=traj.qd, newton=[s.newton_iterations for s in traj.stats],
                  ok=[s.ok for s in traj.stats])
     return 0
 
 
-def matrix(scene, out):
+def matrix(scene, out, partitioner="contiguous"):
     """The distributed matrix (gathered) and forces at a perturbed state, with their serial counterparts' inputs."""
     from springsim.distributed import DistributedSystem
 
@@ -38,8 +38,8 @@ def matrix(scene, out):
 
     model = make(scene)
     q, v = _state(model)
-    ds = DistributedSystem(model)
-    own = model.free_particles[ds.part.lo:ds.part.hi]
+    ds = DistributedSystem(model, partitioner=partitioner)
+    own = ds.part.local_particles[:ds.part.n_own]
     f = ds.forces(q[own], v[own])
     f_full, _ = ds.gather_full(f, f)
     mats = {}
@@ -49,8 +49,10 @@ def matrix(scene, out):
         if A is not None:
             A.sort_indices()
             mats[mode] = A
+    ghosts = ds.mpi.gather(ds.part.n_ghost)  # collective: every rank
     if ds.rank == 0:
-        np.savez(out, f=f_full[model.free_particles], size=ds.size,
+        np.savez(out, f=f_full[model.free_particles], size=ds.size, system_particles=ds.system_particles,
+                 ghosts=np.array(ghosts),
                  **{f"{m}_{k}": getattr(A, k) for m, A in mats.items() for k in ("data", "indices", "indptr")})
     return 0
 

@@ -34,9 +34,23 @@ def irregular(seed: int = 3):
     return b.finalize()
 
 
+def shuffled_cloth(n: int = 12, seed: int = 5):
+    """The benchmark cloth with its particles numbered at random: contiguous blocks of that numbering are
+    scattered over the cloth, a graph partition's parts are not."""
+    import dataclasses
+
+    m = benchmark_cloth(n)
+    perm = np.random.default_rng(seed).permutation(m.particle_count)  # new index k holds old particle perm[k]
+    new_of_old = np.argsort(perm)
+    kw = {f.name: getattr(m, f.name)[perm] for f in dataclasses.fields(m) if f.name.startswith("particle_")}
+    return dataclasses.replace(m, **kw, spring_indices=new_of_old[m.spring_indices], cloth_grids=())
+
+
 def scene(name: str):
     if name == "cloth":
         return benchmark_cloth(8)
+    if name == "shuffled_cloth":
+        return shuffled_cloth()
     if name == "irregular":
         return irregular()
     raise ValueError(name)
