@@ -21,7 +21,7 @@ import numpy as np
 
 from ..errors import SceneError, SolverError
 from ..integrators import StepStats
-from ..integrators._implicit import check_newton_options, record_linear_solve, report_stage
+from ..integrators._implicit import backtrack, check_newton_options, record_linear_solve, report_stage
 
 __all__ = ["DISTRIBUTED_INTEGRATORS", "DistributedIntegrator", "DistributedExplicitEuler",
            "DistributedSymplecticEuler", "DistributedMidpoint", "DistributedLinearizedImplicit",
@@ -131,16 +131,13 @@ class DistributedImplicitEuler(DistributedIntegrator):
             dv = res.x
             step = sysm.norm(dv)
             stats.newton_iterations += 1
-            alpha = 1.0
-            while True:
+            def trial(alpha, v=v, dv=dv):
                 v_try = v + alpha * dv
                 q_try = q_hat + c * v_try
-                R_try, rn_try, ratio_try = self._residual(q_try, v_try, v_hat, c)
-                if (not (converge and self.line_search) or rn_try <= (1.0 - 1e-4 * alpha) * rnorm
-                        or alpha <= self.min_step or not np.isfinite(rnorm)):
-                    break
-                alpha *= 0.5
-            v, q, R, rnorm, ratio = v_try, q_try, R_try, rn_try, ratio_try
+                return (v_try, q_try, *self._residual(q_try, v_try, v_hat, c))
+
+            _, (v, q, R, rnorm, ratio) = backtrack(trial, rnorm, enabled=converge and self.line_search,
+                                                   min_step=self.min_step)
             if not np.isfinite(step):
                 break
             if converge and step < self.newton_tol and ratio <= self.residual_rtol:

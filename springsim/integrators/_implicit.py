@@ -52,7 +52,24 @@ from ._base import PRECISION_LOSS_LIMIT, Integrator, StepStats
 
 _log = logger.getChild("integrators")
 
-__all__ = ["ImplicitIntegrator", "check_newton_options", "report_stage", "record_linear_solve"]
+__all__ = ["ImplicitIntegrator", "backtrack", "check_newton_options", "report_stage", "record_linear_solve"]
+
+
+def backtrack(trial, rnorm: float, *, enabled: bool, min_step: float):
+    """Backtracking line search on ``|R|`` (Armijo on the merit ``1/2 |R|^2``): ``(alpha, trial(alpha))``.
+
+    ``trial(alpha)`` evaluates the iterate at step ``alpha`` and returns a tuple whose fourth entry is its
+    residual norm. ``alpha`` halves from 1 until ``|R|`` decreases by ``1e-4 alpha`` relatively, ``alpha``
+    reaches ``min_step``, or (``enabled`` False) at once. The trial's residual is the next iteration's, so
+    a full step costs nothing extra; near the solution full steps are taken and quadratic convergence kept.
+    """
+    alpha = 1.0
+    while True:
+        result = trial(alpha)
+        rn = result[3]
+        if not enabled or rn <= (1.0 - 1e-4 * alpha) * rnorm or alpha <= min_step or not np.isfinite(rnorm):
+            return alpha, result
+        alpha *= 0.5
 
 
 def check_newton_options(jacobian: str, newton_tol, newton_maxiter, residual_rtol, on_nonconvergence: str) -> None:
@@ -275,20 +292,15 @@ class ImplicitIntegrator(Integrator):
             dv = self._linear_solve(A, asm.gather(R), stats, first=(it == 0)).x
             step = float(np.linalg.norm(dv))
             stats.newton_iterations += 1
-            # Backtracking on |R| (Armijo on the merit 1/2 |R|^2): the trial residual is
-            # the next iteration's residual, so a full step costs nothing extra.
-            alpha = 1.0
-            while True:
+            def trial(alpha, v=v, dv=dv):
                 v_try = v.copy()
                 asm.scatter_add(v_try, dv, alpha)
                 q_try = q_hat + c * v_try
-                R_try, rn_try, ratio_try = self._residual(q_try, v_try, v_hat, c, f, stats)
-                if (not (converge and self.line_search) or rn_try <= (1.0 - 1e-4 * alpha) * rnorm
-                        or alpha <= self.min_step or not np.isfinite(rnorm)):
-                    break
-                alpha *= 0.5
+                return (v_try, q_try, *self._residual(q_try, v_try, v_hat, c, f, stats))
+
+            alpha, (v, q, R, rnorm, ratio) = backtrack(trial, rnorm, enabled=converge and self.line_search,
+                                                       min_step=self.min_step)
             stats.extra["min_line_search_step"] = min(alpha, stats.extra.get("min_line_search_step", 1.0))
-            v, q, R, rnorm, ratio = v_try, q_try, R_try, rn_try, ratio_try
             if not np.isfinite(step):
                 break
             if converge and step < self.newton_tol and ratio <= self.residual_rtol:
