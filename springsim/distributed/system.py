@@ -165,7 +165,7 @@ class DistributedSystem:
         if petsc_options:
             self.insert_options(petsc_options)
         opts = PETSc.Options()
-        for name, value in GAMG_DEFAULTS.items():  # below whatever the user set, however
+        for name, value in GAMG_DEFAULTS.items():  # only where no source (flags, PETSC_OPTIONS) set them
             if not opts.hasName(name):
                 opts[name] = value
 
