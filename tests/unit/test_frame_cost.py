@@ -197,5 +197,9 @@ def test_stiffness_sweep_quick(tmp_path):
     assert all(r["reached"] == "True" for r in se) and int(se[0]["se_substeps"]) < int(se[1]["se_substeps"])
     for r in rows:
         assert (r["reached"] == "True") == (float(r["err_rms"]) < 0.01) and float(r["cpu_per_frame_s"]) > 0
+        assert r["decidable"] == str(float(r["floor"]) < 0.01)
     pytest.importorskip("matplotlib")
+    assert (tmp_path / "stiffness_sweep.png").stat().st_size > 1000
+    (tmp_path / "stiffness_sweep.png").unlink()
+    assert sw.main(["--replot", "--out", str(tmp_path)]) == 0  # the plot again, from the CSV alone
     assert (tmp_path / "stiffness_sweep.png").stat().st_size > 1000
