@@ -20,8 +20,8 @@ import sys
 from dataclasses import dataclass
 from typing import Callable
 
-from ..errors import SceneError, SpringsimError
-from .run import _Exit, configure_logging
+from ..errors import SpringsimError
+from .run import _Exit, configure_logging, error_text
 
 __all__ = ["COMMANDS", "Command", "main", "build_parser"]
 
@@ -98,13 +98,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         with configure_logging(getattr(args, "verbose", 0), getattr(args, "quiet", False)):
             return int(args._command.run(args))
-    except SceneError as e:
-        msg = str(e)
-        if scene and not msg.startswith(str(scene)):
-            msg = f"{scene}: {msg}"
-        return _error(msg)
     except SpringsimError as e:
-        return _error(str(e))
+        return _error(error_text(e, scene))
     except _Exit as e:
         return e.status
     except KeyboardInterrupt:
@@ -113,7 +108,7 @@ def main(argv: list[str] | None = None) -> int:
     except MemoryError:
         return _error("out of memory: the scene is too large for this machine")
     except OSError as e:
-        return _error(f"{e.filename + ': ' if getattr(e, 'filename', None) else ''}{e.strerror or e}")
+        return _error(error_text(e))
 
 
 if __name__ == "__main__":  # pragma: no cover

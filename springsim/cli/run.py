@@ -19,7 +19,7 @@ from ..errors import SimulationError, SimulationInterrupted, SpringsimError, Spr
 from ..options import BACKENDS, MAX_STEPS, SolverConfig
 from .argtypes import int_at_least
 
-__all__ = ["run_command", "add_run_options", "load_and_configure", "execute", "configure_logging",
+__all__ = ["run_command", "add_run_options", "load_and_configure", "execute", "configure_logging", "error_text",
            "load_trajectory_for"]
 
 
@@ -279,13 +279,16 @@ def summary_rows_distributed(scene, cfg, traj) -> list[tuple[str, str]]:
     return rows
 
 
-def _error_text(e: Exception, scene_path) -> str:
-    """The message ``springsim.cli.main`` prints for ``e`` (a scene error names the file)."""
+def error_text(e: Exception, scene_path=None) -> str:
+    """The one-line message of a user error (a scene error names the scene file, an OS error its file)."""
     from ..errors import SceneError
 
-    msg = str(e)
-    if isinstance(e, SceneError) and scene_path and not msg.startswith(str(scene_path)):
-        msg = f"{scene_path}: {msg}"
+    if isinstance(e, OSError):
+        msg = f"{e.filename + ': ' if getattr(e, 'filename', None) else ''}{e.strerror or e}"
+    else:
+        msg = str(e)
+        if isinstance(e, SceneError) and scene_path and not msg.startswith(str(scene_path)):
+            msg = f"{scene_path}: {msg}"
     return " ".join(msg.split())
 
 
@@ -301,8 +304,7 @@ def _load_agreed(args):
         if args.out is not None and env_rank() == 0:
             check_output_path(args.out)
     except (SpringsimError, OSError) as e:
-        err = _error_text(e, args.scene) if not isinstance(e, OSError) else (
-            f"{e.filename + ': ' if getattr(e, 'filename', None) else ''}{e.strerror or e}")
+        err = error_text(e, args.scene)
     err = agree(err)
     if err is not None:
         if env_rank() == 0:
@@ -322,7 +324,7 @@ def _run_petsc(args, scene, cfg) -> int:
         raise
     except SpringsimError as e:  # collective: the same on every rank
         if env_rank() == 0:
-            print(f"springsim: error: {_error_text(e, args.scene)}", file=sys.stderr)
+            print(f"springsim: error: {error_text(e, args.scene)}", file=sys.stderr)
         raise _Exit(2) from None
     except Exception as e:  # one rank's own failure: end every rank now rather than leave them waiting
         from ..distributed import env_size

@@ -108,11 +108,6 @@ class LocalPart:
         """Owned plus ghost particles (the local rows the ghost exchange fills)."""
         return self.n_own + self.n_ghost
 
-    @property
-    def ghost_free(self) -> np.ndarray:
-        """Global free indices of the ghosts."""
-        return self.local_to_free[self.n_own:self.n_local_free]
-
 
 def _sub_model(model: Model, particles: np.ndarray, pairs: dict, *, keep_particle_terms: bool) -> Model:
     """The model restricted to ``particles`` (global ids, in local order) with the pairs ``pairs``

@@ -146,7 +146,6 @@ class DistributedSystem:
         self.mpi = self.comm.tompi4py()
         self.rank, self.size = self.comm.getRank(), self.comm.getSize()
         self.model = model
-        t0 = time.perf_counter()
         if partitioner not in PARTITIONERS:
             raise SceneError("partitioner", f"must be one of {', '.join(PARTITIONERS)}, got {partitioner!r:.60}")
         order = offsets = None
@@ -206,10 +205,7 @@ class DistributedSystem:
         A.setLGMap(self.lgmap, self.lgmap)
         self.A = A
         self._local_csr = None
-        self.nnz_local = int(scols.size)
         self.symmetric = True
-        self.assembly_version = 0
-        self.setup_s = time.perf_counter() - t0
         self.timings = dict(exchange_s=0.0, force_s=0.0, assembly_s=0.0, insert_s=0.0, setup_s=0.0, solve_s=0.0)
 
     # -- options ------------------------------------------------------------------------------------------------
@@ -280,7 +276,6 @@ class DistributedSystem:
         A.setValuesBlockedLocalCSR(*self._local_csr, bsr.data.reshape(-1), addv=self.PETSc.InsertMode.ADD_VALUES)
         A.assemble()
         self.symmetric = bool(self.mpi.allreduce(bool(m.symmetric), op=self.MPI.LAND))
-        self.assembly_version += 1
         self._positions = q_own
         self.timings["assembly_s"] += t1 - t0
         self.timings["insert_s"] += time.perf_counter() - t1
