@@ -136,8 +136,12 @@ class DistributedImplicitEuler(DistributedIntegrator):
                 q_try = q_hat + c * v_try
                 return (v_try, q_try, *self._residual(q_try, v_try, v_hat, c))
 
-            _, (v, q, R, rnorm, ratio) = backtrack(trial, rnorm, enabled=converge and self.line_search,
-                                                   min_step=self.min_step)
+            if not converge and it == maxiter - 1:  # nothing judges the last plain iterate (as the serial stage)
+                v = v + dv
+                q, R, rnorm, ratio = q_hat + c * v, None, float("nan"), float("nan")
+            else:
+                _, (v, q, R, rnorm, ratio) = backtrack(trial, rnorm, enabled=converge and self.line_search,
+                                                       min_step=self.min_step)
             if not np.isfinite(step):
                 break
             if converge and step < self.newton_tol and ratio <= self.residual_rtol:

@@ -45,7 +45,8 @@ class StepStats:
     newton_step_norm : float
         2-norm of the last Newton update ``|dqd|`` [m/s].
     residual_norm : float
-        2-norm of the nonlinear residual at the returned state [N s] (NaN if not computed).
+        2-norm of the nonlinear residual at the returned state [N s] (NaN if not computed: explicit
+        methods, and linearized implicit Euler, whose one plain iteration nothing judges).
     residual_ratio : float
         That residual relative to the size of the balanced terms (NaN if not computed).
     linear_iterations : int
