@@ -10,7 +10,10 @@ inverse block diagonal, Galerkin products) with two differences:
 * ``rho(D^-1 A)`` comes from a short Lanczos run on ``D^-1 A`` in the ``D`` inner
   product (where it is self-adjoint, ``A`` and the block diagonal ``D`` being SPD):
   ``lanczos_steps`` products instead of ~120; the extreme Ritz value is accurate to a few
-  per cent after 12 steps, which is all the smoothing weight ``omega / rho`` needs;
+  per cent after 12 steps, which is all the smoothing weight ``omega / rho`` needs. Every
+  level keeps its top Ritz vector (``level.ritz``); passed back for the next matrix with the
+  same pattern (``ritz``), it starts a run of ``warm_lanczos_steps`` (4) that is as accurate
+  as 12 steps from a random start (BENCHMARKS.md, section 5);
 * the aggregates of every level can be passed back in (``aggregates``) and are then
   reused: the strength graph of a mass-spring system follows its springs, whose set is
   fixed, so aggregates from an earlier matrix with the same pattern stay good (the
@@ -24,7 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.linalg import eigvalsh_tridiagonal
+from scipy.linalg import eigh_tridiagonal, eigvalsh_tridiagonal
 
 __all__ = ["bsr_block_diagonal", "lanczos_rho", "smoothed_aggregation_levels"]
 
@@ -47,45 +50,54 @@ def _block_diagonal_operator(D: np.ndarray) -> sp.bsr_matrix:
     return sp.bsr_matrix((D, np.arange(nb), np.arange(nb + 1)), shape=(nb * bs, nb * bs))
 
 
-def lanczos_rho(A: sp.bsr_matrix, D: np.ndarray, Dinv: np.ndarray, steps: int = 12, seed: int = 0) -> float:
+def lanczos_rho(A: sp.bsr_matrix, D: np.ndarray, Dinv: np.ndarray, steps: int = 12, seed: int = 0,
+                start: np.ndarray | None = None, return_vector: bool = False):
     """Largest eigenvalue of ``D^-1 A`` by ``steps`` Lanczos steps in the ``D`` inner product.
 
     ``A`` symmetric positive definite, ``D`` its block diagonal (SPD), ``Dinv`` the block
     inverses. Returns the largest Ritz value (a lower bound, converging from below), or
-    ``nan`` when the run breaks down (``A`` or ``D`` not positive definite).
+    ``nan`` when the run breaks down (``A`` or ``D`` not positive definite). The run starts
+    from ``start`` when given (e.g. the top Ritz vector of a nearby matrix), else from a
+    random vector (``seed``). With ``return_vector``: ``(rho, y)``, ``y`` the top Ritz vector
+    (None on breakdown).
     """
     n = A.shape[0]
     Dop, Dinvop = _block_diagonal_operator(D), _block_diagonal_operator(Dinv)
-    rng = np.random.default_rng(seed)
-    q = rng.standard_normal(n)
+    q = np.random.default_rng(seed).standard_normal(n) if start is None else np.array(start, dtype=A.dtype)
     nq = float(q @ (Dop @ q))
+    nan = (float("nan"), None) if return_vector else float("nan")
     if not nq > 0.0:
-        return float("nan")
+        return nan
     q /= np.sqrt(nq)
     q_prev = np.zeros(n)
-    alphas, betas = [], []
+    alphas, betas, basis = [], [], []
     beta = 0.0
     for _ in range(max(int(steps), 1)):
+        if return_vector:
+            basis.append(q)
         Aq = A @ q
         alpha = float(q @ Aq)
         w = Dinvop @ Aq - alpha * q - beta * q_prev
         alphas.append(alpha)
         beta2 = float(w @ (Dop @ w))
         if not np.isfinite(alpha) or not np.isfinite(beta2) or beta2 < 0.0:
-            return float("nan")
+            return nan
         beta = np.sqrt(beta2)
         if beta <= 1e-12 * abs(alpha):  # invariant subspace: the Ritz values are exact
             break
         betas.append(beta)
         q_prev, q = q, w / beta
     k = len(alphas)
-    theta = eigvalsh_tridiagonal(np.array(alphas), np.array(betas[:k - 1]))
-    return float(theta[-1])
+    if not return_vector:
+        return float(eigvalsh_tridiagonal(np.array(alphas), np.array(betas[:k - 1]))[-1])
+    theta, S = eigh_tridiagonal(np.array(alphas), np.array(betas[:k - 1]))
+    return float(theta[-1]), np.column_stack(basis) @ S[:, -1]
 
 
 def smoothed_aggregation_levels(A: sp.bsr_matrix, B: np.ndarray, *, theta: float = 0.1, omega: float = 4.0 / 3.0,
                                 max_coarse: int = 50, max_levels: int = 10, lanczos_steps: int = 12,
-                                aggregates: list | None = None):
+                                aggregates: list | None = None, ritz: list | None = None,
+                                warm_lanczos_steps: int = 4):
     """The levels of a smoothed-aggregation hierarchy for the SPD BSR matrix ``A``.
 
     Parameters
@@ -102,17 +114,22 @@ def smoothed_aggregation_levels(A: sp.bsr_matrix, B: np.ndarray, *, theta: float
         Stop coarsening at this many block rows (pyamg's convention).
     max_levels : int
     lanczos_steps : int
-        Lanczos steps of the spectral-radius estimate.
+        Lanczos steps of the spectral-radius estimate from a random start.
     aggregates : list of csr_matrix, optional
         Aggregation operators of a previous call with a matrix of the same pattern
         (reused instead of recomputing strength and aggregates).
+    ritz : list of ndarray, optional
+        The levels' ``ritz`` vectors of a previous call with a matrix of the same pattern: each
+        level's estimate then starts from its vector and runs ``warm_lanczos_steps`` steps.
+    warm_lanczos_steps : int
 
     Returns
     -------
     levels : list of pyamg ``MultilevelSolver.Level``
         With ``A``, ``B``, ``P``, ``R`` (``R = P^T``) set; the last level has ``A`` and ``B``.
         Every level's ``A`` but the last (the given ``A`` included) gets the attribute
-        ``block_D_inv``, its inverted block diagonal, which pyamg's block smoothers then reuse.
+        ``block_D_inv``, its inverted block diagonal, which pyamg's block smoothers then reuse;
+        every level but the last the attribute ``ritz``, the top Ritz vector of ``D^-1 A``.
     aggregates : list of csr_matrix
         The aggregation operator of every level but the last (pass back to reuse).
 
@@ -148,7 +165,10 @@ def smoothed_aggregation_levels(A: sp.bsr_matrix, B: np.ndarray, *, theta: float
         # the smoothers' block inverse too: pyamg's ``get_block_diag`` returns ``A.block_D_inv`` when
         # set, so each level inverts its diagonal once instead of three times
         Ak.block_D_inv = Dinv
-        rho = lanczos_rho(Ak, D, Dinv, steps=lanczos_steps)
+        start = ritz[li] if ritz is not None and li < len(ritz) and ritz[li] is not None \
+            and ritz[li].shape == (Ak.shape[0],) else None
+        rho, y = lanczos_rho(Ak, D, Dinv, steps=lanczos_steps if start is None else warm_lanczos_steps,
+                             start=start, return_vector=True)
         if not (np.isfinite(rho) and rho > 0.0):
             raise ArithmeticError("spectral radius estimate of D^-1 A broke down (matrix not positive definite)")
         AT = (Ak @ T).tobsr(blocksize=T.blocksize)
@@ -158,6 +178,7 @@ def smoothed_aggregation_levels(A: sp.bsr_matrix, B: np.ndarray, *, theta: float
         R = P.T.tobsr(blocksize=(P.blocksize[1], P.blocksize[0]))
         level = MultilevelSolver.Level()
         level.A, level.B, level.P, level.R = Ak, Bk, P, R
+        level.ritz = y
         levels.append(level)
         used.append(agg)
         Ak = (R @ (Ak @ P)).tobsr(blocksize=(P.blocksize[1], P.blocksize[1]))

@@ -16,7 +16,8 @@ implicit system's 3x3 block structure:
 * **prolongation**: Jacobi-smoothed aggregation (``omega = 4/3`` over the spectral radius of
   ``D^-1 A`` with the 3x3 block diagonal ``D``), symmetric strength ``theta = 0.1``; for
   symmetric systems the setup of :mod:`springsim.linsolve._sa` (a short Lanczos estimate of the
-  spectral radius, aggregates kept per matrix pattern), else pyamg's own setup.
+  spectral radius, warm-started from the previous matrix's Ritz vectors, and aggregates kept per
+  matrix pattern), else pyamg's own setup.
 * **coarsest level**: at most ``max_coarse`` block rows, solved by a dense pseudo-inverse (the
   coarse operator of a flat cloth is exactly singular in its rotation modes).
 * **reuse**: a hierarchy is kept for repeated solves with the same matrix and tried on the next
@@ -153,7 +154,7 @@ class AMGPreconditioner(Preconditioner):
         self._next_cooldown = self.cooldown
         self._skip = 0
         self._trial = False
-        self._aggregates, self._aggregates_key = None, None
+        self._aggregates, self._ritz, self._aggregates_key = None, None, None
         self.version = None
         self.stale_rebuilds = 0
         self.sa_options = dict(sa_options or {})
@@ -262,7 +263,7 @@ class AMGPreconditioner(Preconditioner):
 
     def _build_own(self, M, B, key, A_pattern, pre, post):
         """The hierarchy from :func:`~springsim.linsolve._sa.smoothed_aggregation_levels`
-        (Lanczos spectral radius, aggregates kept per matrix pattern); None when its
+        (Lanczos spectral radius, aggregates and Ritz vectors kept per matrix pattern); None when its
         spectral-radius estimate breaks down (``M`` not SPD: pyamg's setup takes over)."""
         from pyamg.multilevel import MultilevelSolver
         from pyamg.relaxation.smoothing import change_smoothers
@@ -271,12 +272,14 @@ class AMGPreconditioner(Preconditioner):
 
         M.symmetry = "hermitian"
         self._pattern_ref = A_pattern  # held, so that its id (part of ``key``) is not reused
-        aggregates = self._aggregates if self._aggregates_key == key else None
+        same = self._aggregates_key == key
         try:
-            levels, used = smoothed_aggregation_levels(M, B, max_coarse=self.max_coarse, aggregates=aggregates)
+            levels, used = smoothed_aggregation_levels(M, B, max_coarse=self.max_coarse,
+                                                       aggregates=self._aggregates if same else None,
+                                                       ritz=self._ritz if same else None)
         except (ArithmeticError, np.linalg.LinAlgError):
             return None
-        self._aggregates, self._aggregates_key = used, key
+        self._aggregates, self._ritz, self._aggregates_key = used, [lv.ritz for lv in levels[:-1]], key
         ml = MultilevelSolver(levels, coarse_solver="pinv")
         change_smoothers(ml, pre, post)
         return ml

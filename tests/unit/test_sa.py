@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import scipy.sparse as sp
@@ -39,6 +41,55 @@ def test_block_diagonal_and_lanczos_rho_match_dense():
     assert rho <= exact * (1 + 1e-10)          # a Ritz value: from below
     assert rho >= 0.95 * exact                  # and close after 12 steps
     assert lanczos_rho(M, D, Dinv, steps=60) == pytest.approx(exact, rel=1e-8)
+
+
+def _two_nearby_systems(n=16, moved=0.005, seed=3):
+    """Two spd system matrices of one assembler (one pattern): a stretched, moving cloth and the same
+    cloth with every particle moved by up to ``moved`` [m]; and a right-hand side."""
+    rng = np.random.default_rng(seed)
+    model = benchmark_cloth(n)
+    asm = SystemAssembler(model, make_force_terms(model))
+    q = 1.1 * model.particle_q + rng.uniform(-0.02, 0.02, model.particle_q.shape)
+    qd = rng.uniform(-1.0, 1.0, q.shape)
+    h = 1.0 / 60.0
+    A = asm.assemble(q, qd, h * h, h, "spd")
+    A0 = dataclasses.replace(A, bsr=A.bsr.copy(), positions=np.array(A.positions), _cache={})  # a snapshot
+    A1 = asm.assemble(q + rng.uniform(-moved, moved, q.shape), qd, h * h, h, "spd")
+    return A0, A1, rng.standard_normal(A1.shape[0])
+
+
+def test_warm_started_lanczos_matches_cold_estimate():
+    """Four Lanczos steps from the top Ritz vector of a nearby matrix estimate rho(D^-1 A) as well as
+    twelve from a random start (a few per cent, from below); a levels' setup hands the vectors on."""
+    A0, A1, _ = _two_nearby_systems()
+    M0, M1 = A0.bsr, A1.bsr
+    D0, D1 = bsr_block_diagonal(M0), bsr_block_diagonal(M1)
+    rho0, y = lanczos_rho(M0, D0, np.linalg.inv(D0), steps=12, return_vector=True)
+    assert y.shape == (M0.shape[0],) and rho0 == lanczos_rho(M0, D0, np.linalg.inv(D0), steps=12)
+    D1inv = np.linalg.inv(D1)
+    exact = lanczos_rho(M1, D1, D1inv, steps=200)
+    warm = lanczos_rho(M1, D1, D1inv, steps=4, start=y)
+    assert exact * (1 + 1e-10) >= warm >= 0.97 * exact
+    assert lanczos_rho(M1, D1, D1inv, steps=12) >= 0.95 * exact
+    levels, _ = smoothed_aggregation_levels(M0.copy(), rigid_body_modes(np.asarray(A0.positions)), max_coarse=10)
+    assert len(levels) >= 3
+    assert all(lv.ritz is not None and lv.ritz.shape == (lv.A.shape[0],) for lv in levels[:-1])
+
+
+def test_warm_started_hierarchy_solves_like_a_cold_one():
+    """The AMG preconditioner's second build on a matrix of the same pattern (aggregates and Ritz vectors
+    handed on) gives the solution of a cold build to the solver's tolerance, in as many iterations +- 1."""
+    A0, A1, b = _two_nearby_systems()
+    x_ref = np.linalg.solve(A1.toarray(), b)
+    warm = make_linear_solver("amg-cg", rtol=1e-10, max_coarse=10, reuse=False)
+    warm.solve(A0, b)
+    res_w = warm.solve(A1, b)
+    assert warm.preconditioner._ritz is not None and warm.preconditioner.builds == 2
+    res_c = make_linear_solver("amg-cg", rtol=1e-10, max_coarse=10, reuse=False).solve(A1, b)
+    for res in (res_w, res_c):
+        assert res.converged and res.fallback is None
+        np.testing.assert_allclose(res.x, x_ref, rtol=0, atol=1e-7 * np.abs(x_ref).max())
+    assert abs(res_w.iterations - res_c.iterations) <= 1
 
 
 def test_lanczos_rho_reports_breakdown_on_indefinite_matrix():
