@@ -9,6 +9,10 @@ from . import BENCHMARKS
 
 
 def main(argv: list[str] | None = None) -> int:
+    if argv is None:  # run as a program: the command line's allocator policy (springsim._alloc)
+        from springsim._alloc import retain_freed_memory
+
+        retain_freed_memory()
     argv = sys.argv[1:] if argv is None else list(argv)
     if not argv or argv[0] in ("-h", "--help", "list"):
         print("usage: python -m benchmarks NAME [options]   (python -m benchmarks NAME --help)\n\nbenchmarks:")
