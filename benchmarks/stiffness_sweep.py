@@ -98,6 +98,8 @@ def main(argv=None) -> int:
                    help="implicit configurations method:1/h:solver (default: %s)" % " ".join(DEFAULT_CANDIDATES))
     p.add_argument("--target", type=float, default=0.01, help="RMS error target [m] (default 0.01)")
     p.add_argument("--frames", type=int, default=frame_cost.DEFAULT_FRAMES, help="frames of the window")
+    p.add_argument("--budget", type=float, default=14400.0,
+                   help="wall-time budget per size and stiffness [s] (default 14400: a sweep runs every candidate)")
     p.add_argument("--quick", action="store_true", help="n = 6, ke 1e3 1e4, two candidates, 20 frames (tests)")
     p.add_argument("--replot", action="store_true", help="only redraw the plot from the CSV of an earlier run")
     p.add_argument("--out", type=Path, default=RESULTS_DIR)
@@ -116,7 +118,7 @@ def main(argv=None) -> int:
     for ke in a.ke:
         d = a.out / "stiffness_sweep" / f"ke{ke:g}"
         args = ["--ke", f"{ke:g}", "--sizes", *map(str, a.sizes), "--measure-all", "--frames", str(a.frames),
-                "--target", str(a.target), "--out", str(d), "--candidates", *a.candidates]
+                "--target", str(a.target), "--budget", str(a.budget), "--out", str(d), "--candidates", *a.candidates]
         if a.quick:
             args += ["--explicit-window", "0.05"]
         frame_cost.main(args)
