@@ -219,11 +219,13 @@ def verify_explicit(model, omega: float, *, window: float, max_steps: int | None
 # -- candidates -----------------------------------------------------------------------------------------------------
 @dataclass
 class Candidate:
-    """A configuration: integrator name (or ``verlet``), step ``1/hinv`` [s], linear solver (``none`` if explicit)."""
+    """A configuration: integrator name (or ``verlet``), step ``1/hinv`` [s], linear solver (``none`` if explicit),
+    and integrator options (``(name, value)`` pairs, e.g. ``(("forcing", "eisenstat-walker"),)``)."""
 
     method: str
     hinv: float
     solver: str
+    options: tuple = ()
 
     @property
     def h(self) -> float:
@@ -241,22 +243,35 @@ class Candidate:
 
     @property
     def label(self) -> str:
-        return f"{self.method} h=1/{self.hinv:g}" + (f" {self.solver}" if self.solver != "none" else "")
+        return (f"{self.method} h=1/{self.hinv:g}" + (f" {self.solver}" if self.solver != "none" else "")
+                + "".join(f" {k}={v}" for k, v in self.options))
 
 
 def parse_candidate(text: str) -> Candidate:
-    """``method:1/h:solver`` (e.g. ``tr_bdf2:240:auto``, ``symplectic_euler:2880:none``) to a :class:`Candidate`.
+    """``method:1/h:solver[:name=value,...]`` (e.g. ``tr_bdf2:240:auto``, ``symplectic_euler:2880:none``,
+    ``tr_bdf2:120:auto:forcing=eisenstat-walker``) to a :class:`Candidate`.
 
     ``1/h`` must be a whole multiple of the frame rate (60); implicit methods take a registered linear
-    solver, explicit ones (and ``verlet``) ``none``. Errors are one line naming the field.
+    solver, explicit ones (and ``verlet``) ``none``; the optional fourth field gives integrator options
+    (numbers where they parse as numbers). Errors are one line naming the field.
     """
     from springsim.integrators import INTEGRATORS
     from springsim.linsolve import LINEAR_SOLVERS
 
     parts = text.split(":")
-    if len(parts) != 3:
-        raise argparse.ArgumentTypeError(f"--candidates: expected method:1/h:solver, got {text!r}")
-    method, hinv, solver = parts
+    if len(parts) not in (3, 4):
+        raise argparse.ArgumentTypeError(f"--candidates: expected method:1/h:solver[:name=value,...], got {text!r}")
+    method, hinv, solver = parts[:3]
+    options = []
+    for item in (parts[3].split(",") if len(parts) == 4 else []):
+        name, eq, value = item.partition("=")
+        if not eq or not name.isidentifier():
+            raise argparse.ArgumentTypeError(f"--candidates: expected name=value options, got {item!r}")
+        try:
+            value = float(value) if any(ch in value for ch in ".eE") else int(value)
+        except ValueError:
+            pass
+        options.append((name, value))
     if method not in INTEGRATORS and method != "verlet":
         raise argparse.ArgumentTypeError(f"--candidates: unknown method {method!r} (an integrator or verlet)")
     try:
@@ -275,7 +290,9 @@ def parse_candidate(text: str) -> Candidate:
     if not implicit and solver != "none":
         raise argparse.ArgumentTypeError(f"--candidates: explicit method {method!r} takes the solver 'none', "
                                          f"got {solver!r}")
-    return Candidate(method, hv, solver)
+    if options and not implicit:
+        raise argparse.ArgumentTypeError(f"--candidates: options are for implicit methods, got {text!r}")
+    return Candidate(method, hv, solver, tuple(options))
 
 
 @dataclass
@@ -342,7 +359,7 @@ def make_run(model, cand: Candidate, options: dict):
     :func:`benchmarks.reference_cache.explicit_run` (``verlet`` or an explicit integrator)."""
     h = FRAME_DT / cand.steps_per_frame
     if cand.implicit:
-        return Run(model, cand.method, h, cand.solver, options)
+        return Run(model, cand.method, h, cand.solver, {**options, **dict(cand.options)})
     return reference_cache.explicit_run(model, cand.method, h)
 
 

@@ -164,6 +164,9 @@ class SolverConfig:
                                          strict=True, to="integrator",
                                          help="Newton residual tolerance, relative to the balanced terms "
                                               "(default 1e-3)")
+    forcing: str | None = option(None, kind="name", cli="--forcing", metavar="RULE", to="integrator",
+                                 help="relative tolerance of Newton's linear solves: fixed (the solver's rtol, default) "
+                                      "or eisenstat-walker (loose far from the root, tightening as Newton converges)")
     time_rtol: float | None = option(None, kind="float", cli="--time-rtol", metavar="R", lo=0.0, strict=True,
                                      help="adaptive time stepping (bdf2, tr_bdf2): relative local error tolerance (default: "
                                           "fixed steps; with only time_atol, equal to it)")
@@ -230,6 +233,12 @@ class SolverConfig:
             if self.partitioner not in PARTITIONERS:
                 raise SceneError("solver.partitioner", f"unknown partitioner {self.partitioner!r:.60}; choose one "
                                                        f"of {', '.join(PARTITIONERS)}")
+        if self.forcing is not None:
+            from .integrators._implicit import FORCING_RULES
+
+            if self.forcing not in FORCING_RULES:
+                raise SceneError("solver.forcing", f"unknown forcing rule {self.forcing!r:.60}; choose one of "
+                                                   f"{', '.join(FORCING_RULES)}")
         if self.jacobian is not None:
             from .forces import JACOBIAN_MODES
 

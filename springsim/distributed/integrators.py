@@ -21,7 +21,7 @@ import numpy as np
 
 from ..errors import SceneError, SolverError
 from ..integrators import StepStats
-from ..integrators._implicit import backtrack, check_newton_options, record_linear_solve, report_stage
+from ..integrators._implicit import backtrack, check_newton_options, forcing_term, record_linear_solve, report_stage
 
 __all__ = ["DISTRIBUTED_INTEGRATORS", "DistributedIntegrator", "DistributedExplicitEuler",
            "DistributedSymplecticEuler", "DistributedMidpoint", "DistributedLinearizedImplicit",
@@ -87,11 +87,15 @@ class DistributedImplicitEuler(DistributedIntegrator):
 
     def __init__(self, system, *, jacobian: str | None = None, newton_tol: float = 1e-5,
                  newton_maxiter: int | None = None, residual_rtol: float = 1e-3, line_search: bool = True,
-                 min_step: float = 1.0 / 64, on_nonconvergence: str = "warn"):
+                 min_step: float = 1.0 / 64, on_nonconvergence: str = "warn", forcing: str = "fixed",
+                 forcing_max: float = 0.1):
         super().__init__(system)
         jacobian = "spd" if jacobian is None else jacobian
         newton_maxiter = 5 if newton_maxiter is None else newton_maxiter
-        check_newton_options(jacobian, newton_tol, newton_maxiter, residual_rtol, on_nonconvergence)
+        check_newton_options(jacobian, newton_tol, newton_maxiter, residual_rtol, on_nonconvergence, forcing,
+                             forcing_max)
+        self.forcing = forcing
+        self.forcing_max = float(forcing_max)
         self.jacobian = jacobian
         self.newton_tol = float(newton_tol)
         self.newton_maxiter = int(newton_maxiter)
@@ -119,10 +123,15 @@ class DistributedImplicitEuler(DistributedIntegrator):
         q = q_hat + c * v
         R, rnorm, ratio = self._residual(q, v, v_hat, c)
         converged, step, failed = False, 0.0, []
+        inexact = converge and self.forcing == "eisenstat-walker"
+        eta, rnorm_prev = None, 0.0
         for it in range(maxiter):
             sysm.assemble(q, v, c * c, c, self.jacobian, exchange=False)  # the residual exchanged (q, v)
             stats.precision_loss = max(stats.precision_loss, sysm.precision_loss())
-            res = sysm.solve(R, x0=self._warm if it == 0 else None)
+            if inexact:  # global norms: every rank computes the same forcing term
+                eta = forcing_term(it, rnorm, rnorm_prev, eta or 0.0, eta_max=self.forcing_max, floor=sysm.rtol)
+                rnorm_prev = rnorm
+            res = sysm.solve(R, x0=self._warm if it == 0 else None, rtol=eta)
             failure = record_linear_solve(stats, res, sysm.all_finite(res.x))
             if failure:
                 failed.append(failure)

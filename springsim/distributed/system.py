@@ -298,13 +298,13 @@ class DistributedSystem:
         return float(self.mpi.allreduce(local, op=self.MPI.MAX))
 
     # -- solve -----------------------------------------------------------------------------------------------------
-    def _ksp(self, ksp_type: str, maxiter: int, x0_nonzero: bool):
+    def _ksp(self, ksp_type: str, maxiter: int, x0_nonzero: bool, rtol: float):
         PETSc = self.PETSc
         ksp = PETSc.KSP().create(comm=self.comm)
         ksp.setOperators(self.A)
         ksp.setType(ksp_type)
         ksp.getPC().setType(self.pc_type)
-        ksp.setTolerances(rtol=self.rtol, atol=self.atol, max_it=maxiter)
+        ksp.setTolerances(rtol=rtol, atol=self.atol, max_it=maxiter)
         ksp.setNormType(PETSc.KSP.NormType.UNPRECONDITIONED)
         ksp.setInitialGuessNonzero(x0_nonzero)
         ksp.setFromOptions()
@@ -317,8 +317,10 @@ class DistributedSystem:
         self.A.setNearNullSpace(ns)
         return ns
 
-    def solve(self, rhs_own: np.ndarray, x0: np.ndarray | None = None) -> LinearSolveResult:
-        """Solve ``A x = rhs`` (owned parts); see the module docstring for the defaults, checks and retry."""
+    def solve(self, rhs_own: np.ndarray, x0: np.ndarray | None = None, rtol: float | None = None) -> LinearSolveResult:
+        """Solve ``A x = rhs`` (owned parts) to the relative residual ``rtol`` (default :attr:`rtol`); see the
+        module docstring for the defaults, checks and retry."""
+        rtol = self.rtol if rtol is None else float(rtol)
         b, x = self.b, self.x
         b.array[:] = rhs_own.ravel()
         bn = b.norm()
@@ -329,12 +331,12 @@ class DistributedSystem:
         attempts = [(first, self.maxiter), ("gmres", 5 * self.maxiter)]
         its, setup, solve = 0, 0.0, 0.0
         fallback, method, rel, reason = None, "", float("inf"), 0
-        target = max(self.rtol, self.atol / bn)
+        target = max(rtol, self.atol / bn)
         for k, (kind, maxiter) in enumerate(attempts):
             if k == 0:
                 x.array[:] = 0.0 if x0 is None else np.asarray(x0).ravel()
             t0 = time.perf_counter()
-            ksp = self._ksp(kind, maxiter, x0_nonzero=(k > 0 or x0 is not None))
+            ksp = self._ksp(kind, maxiter, x0_nonzero=(k > 0 or x0 is not None), rtol=rtol)
             ksp.setUp()
             t1 = time.perf_counter()
             ksp.solve(b, x)
@@ -359,7 +361,7 @@ class DistributedSystem:
         self.timings["setup_s"] += setup
         self.timings["solve_s"] += solve
         ok = reason > 0 and np.isfinite(rel) and rel <= 1.01 * target
-        failure = None if ok else (f"{method}: relative residual {rel:.2e} above rtol {self.rtol:g} "
+        failure = None if ok else (f"{method}: relative residual {rel:.2e} above rtol {rtol:g} "
                                    f"(PETSc reason {reason}) after the retry")
         return LinearSolveResult(x.array.reshape(-1, 3).copy(), ok, its, float(rel),
                                  method + ("" if fallback is None else " (retry)"), setup, solve, failure, fallback)

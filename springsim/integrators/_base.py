@@ -137,7 +137,7 @@ class Integrator(ABC):
     #: Keyword options other integrators take that this one ignores (:func:`make_integrator` warns about them).
     unused_options: ClassVar[frozenset] = frozenset({
         "solver", "jacobian", "newton_tol", "newton_maxiter", "residual_rtol", "on_nonconvergence", "solver_options",
-        "line_search", "min_step", "escalate_jacobian", "escalate_after"})
+        "line_search", "min_step", "escalate_jacobian", "escalate_after", "forcing", "forcing_max"})
 
     def __init__(self, model, *, terms=None):
         self.model = model

@@ -27,6 +27,15 @@ with ``F = 0`` is measured against the residual of a velocity error of ``newton_
 converged stages of the test and benchmark scenes ``rho`` is 1e-16 ... 4e-6; on the false
 convergences of a 1 kg pendulum at ``h = 1e6 s`` it is 0.05 ... 1 (docs/robustness.md).
 
+Forcing. With ``forcing="eisenstat-walker"`` the linear solves of a stage that runs to convergence are
+inexact Newton steps (Dembo, Eisenstat and Steihaug 1982): each solve of ``A dv = R`` stops at the relative
+residual ``eta_k`` of Eisenstat and Walker (1996, choice 2; :func:`forcing_term`), loose while ``|R|``
+is far from zero (0.1 at the first iteration), tightening as it converges quadratically, never below the
+solver's ``rtol``. A solve to ``rtol`` = 1e-6 at the first iterations buys nothing the next iteration keeps:
+with the ``spd`` Jacobian Newton converges only linearly anyway. The stopping rule is unchanged, so the
+result is a converged stage either way (the two differ by the Newton tolerance); direct solvers ignore it.
+The default ``"fixed"`` solves every system to the solver's ``rtol``.
+
 Linear solves. Each result is checked (``LinearSolveResult.converged``). A solve that missed its
 criterion after the solver's own refinement and fallback is still a usable search direction
 for Newton (inexact Newton): the line search and the stopping rule judge the outcome, so in
@@ -52,7 +61,28 @@ from ._base import PRECISION_LOSS_LIMIT, Integrator, StepStats
 
 _log = logger.getChild("integrators")
 
-__all__ = ["ImplicitIntegrator", "backtrack", "check_newton_options", "report_stage", "record_linear_solve"]
+__all__ = ["FORCING_RULES", "ImplicitIntegrator", "backtrack", "check_newton_options", "forcing_term", "report_stage",
+           "record_linear_solve"]
+
+#: Rules for the relative tolerance of a Newton stage's linear solves (``forcing``; module docstring).
+FORCING_RULES = ("fixed", "eisenstat-walker")
+
+
+def forcing_term(k: int, rnorm: float, rnorm_prev: float, eta_prev: float, *, eta_max: float, floor: float) -> float:
+    """Relative tolerance of the ``k``-th linear solve of a Newton stage (Eisenstat and Walker 1996, choice 2).
+
+    ``eta_0 = eta_max``; then ``eta_k = 0.9 (|R_k| / |R_{k-1}|)^2``, safeguarded by ``0.9 eta_{k-1}^2`` when that
+    exceeds 0.1 (a sudden drop of ``|R|`` does not make one solve needlessly tight), capped at ``eta_max`` and
+    never below ``floor`` (the solver's ``rtol``).
+    """
+    if k == 0 or not (rnorm_prev > 0.0 and np.isfinite(rnorm)):
+        eta = eta_max
+    else:
+        eta = 0.9 * (rnorm / rnorm_prev) ** 2
+        safeguard = 0.9 * eta_prev ** 2
+        if safeguard > 0.1:
+            eta = max(eta, safeguard)
+    return max(min(eta, eta_max), floor)
 
 
 def backtrack(trial, rnorm: float, *, enabled: bool, min_step: float):
@@ -72,9 +102,14 @@ def backtrack(trial, rnorm: float, *, enabled: bool, min_step: float):
         alpha *= 0.5
 
 
-def check_newton_options(jacobian: str, newton_tol, newton_maxiter, residual_rtol, on_nonconvergence: str) -> None:
+def check_newton_options(jacobian: str, newton_tol, newton_maxiter, residual_rtol, on_nonconvergence: str,
+                         forcing: str = "fixed", forcing_max: float = 0.1) -> None:
     """Validate the options of a Newton stage solver; a SceneError naming the parameter (ValueError for
     ``on_nonconvergence``, a programming choice rather than scene input)."""
+    if forcing not in FORCING_RULES:
+        raise SceneError("forcing", f"must be one of {', '.join(FORCING_RULES)}, got {forcing!r:.60}")
+    if not 0.0 < forcing_max < 1.0:
+        raise SceneError("forcing_max", f"must be in (0, 1), got {forcing_max!r:.60}")
     if jacobian not in JACOBIAN_MODES:
         raise SceneError("jacobian", f"must be one of {', '.join(JACOBIAN_MODES)}, got {jacobian!r}")
     if not newton_tol > 0:
@@ -187,6 +222,11 @@ class ImplicitIntegrator(Integrator):
         that run Newton to convergence escalate, so linearized implicit Euler is unaffected.
     escalate_after : int or None
         Iterations with the projected Jacobian before escalating (default: the Newton limit).
+    forcing : {"fixed", "eisenstat-walker"}
+        Relative tolerance of the linear solves of stages run to convergence: the solver's ``rtol``
+        (``"fixed"``), or Eisenstat-Walker forcing terms (module docstring).
+    forcing_max : float
+        Largest (and first) Eisenstat-Walker forcing term (default 0.1).
     terms : list of ForceTerm, optional
         Force terms (default: those the model uses).
     """
@@ -199,14 +239,18 @@ class ImplicitIntegrator(Integrator):
     def __init__(self, model, *, solver="auto", jacobian: str | None = None, newton_tol: float = 1e-5,
                  newton_maxiter: int | None = None, residual_rtol: float = 1e-3, on_nonconvergence: str = "warn",
                  solver_options: dict | None = None, line_search: bool = True, min_step: float = 1.0 / 64,
-                 escalate_jacobian: bool = True, escalate_after: int | None = None, terms=None):
+                 escalate_jacobian: bool = True, escalate_after: int | None = None, forcing: str = "fixed",
+                 forcing_max: float = 0.1, terms=None):
         super().__init__(model, terms=terms)
         self.solver = make_linear_solver(solver, **(solver_options or {}))
         if jacobian is None:
             jacobian = "spd" if self.solver.needs_spd_for(3 * model.free_count) else "exact"
         if newton_maxiter is None:
             newton_maxiter = self.default_newton_maxiter
-        check_newton_options(jacobian, newton_tol, newton_maxiter, residual_rtol, on_nonconvergence)
+        check_newton_options(jacobian, newton_tol, newton_maxiter, residual_rtol, on_nonconvergence, forcing,
+                             forcing_max)
+        self.forcing = forcing
+        self.forcing_max = float(forcing_max)
         self.jacobian = jacobian
         self.newton_tol = float(newton_tol)
         self.newton_maxiter = int(newton_maxiter)
@@ -290,11 +334,16 @@ class ImplicitIntegrator(Integrator):
         R, rnorm, ratio = self._residual(q, v, v_hat, c, f, stats)
         converged = False
         step = 0.0
+        inexact = converge and self.forcing == "eisenstat-walker"
+        eta, rnorm_prev = None, 0.0
         for it in range(maxiter):
             A = asm.assemble(q, v, c * c, c, mode)
             stats.assembly_s += asm.last_time_s
             stats.precision_loss = max(stats.precision_loss, asm.precision_loss(A))
-            dv = self._linear_solve(A, asm.gather(R), stats, first=(it == 0)).x
+            if inexact:
+                eta = forcing_term(it, rnorm, rnorm_prev, eta or 0.0, eta_max=self.forcing_max, floor=self.solver.rtol)
+                rnorm_prev = rnorm
+            dv = self._linear_solve(A, asm.gather(R), stats, first=(it == 0), rtol=eta).x
             step = float(np.linalg.norm(dv))
             stats.newton_iterations += 1
             def trial(alpha, v=v, dv=dv, judged=True):
@@ -331,9 +380,9 @@ class ImplicitIntegrator(Integrator):
         stats.force_s += time.perf_counter() - t0
         return R, rnorm, (rnorm / scale if scale > 0 else 0.0)
 
-    def _linear_solve(self, A, b, stats, first: bool):
+    def _linear_solve(self, A, b, stats, first: bool, rtol: float | None = None):
         x0 = self._warm if (first and self._warm is not None and self._warm.shape == b.shape) else None
-        res = self.solver.solve(A, b, x0=x0)
+        res = self.solver.solve(A, b, x0=x0, rtol=rtol)
         failure = record_linear_solve(stats, res, bool(np.all(np.isfinite(res.x))))
         if failure:
             self._stage_failures.append(failure)

@@ -190,9 +190,11 @@ class LinearSolver(ABC):
         (integrators choose their default mode with it); ``needs_spd`` unless overridden."""
         return self.needs_spd
 
-    def solve(self, A, b: np.ndarray, *, x0: np.ndarray | None = None) -> LinearSolveResult:
+    def solve(self, A, b: np.ndarray, *, x0: np.ndarray | None = None, rtol: float | None = None) -> LinearSolveResult:
         """Solve ``A x = b``; ``x0`` is an initial guess for iterative methods.
 
+        ``rtol`` replaces :attr:`rtol` for this solve (iterative solvers; e.g. the forcing term of an
+        inexact Newton iteration); direct solvers solve to round-off whatever it is.
         Runs with one BLAS thread (:func:`springsim._threads.single_blas_thread`).
         """
         A = as_system_matrix(A)
@@ -201,8 +203,17 @@ class LinearSolver(ABC):
             raise ValueError(f"b must have shape ({A.shape[0]},), got {b.shape}")
         if b.size == 0:
             return LinearSolveResult(np.zeros(0), True, 0, 0.0, self.name, backward_error=0.0)
-        with single_blas_thread():
-            return self._solve(A, b, x0)
+        if rtol is None:
+            with single_blas_thread():
+                return self._solve(A, b, x0)
+        if not rtol >= 0:
+            raise ValueError(f"rtol must be >= 0, got {rtol}")
+        saved, self.rtol = self.rtol, float(rtol)
+        try:
+            with single_blas_thread():
+                return self._solve(A, b, x0)
+        finally:
+            self.rtol = saved
 
     @abstractmethod
     def _solve(self, A, b: np.ndarray, x0: np.ndarray | None) -> LinearSolveResult:

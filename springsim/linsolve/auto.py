@@ -56,6 +56,16 @@ class LinearSolverAuto(LinearSolver):
             "amg-gmres": LinearSolverAMGGMRES(rtol=self.rtol, atol=self.atol, maxiter=maxiter, fallback=fallback),
         }
 
+    @property
+    def rtol(self) -> float:
+        return self._rtol
+
+    @rtol.setter
+    def rtol(self, value: float) -> None:  # the sub-solvers follow (a per-solve rtol included)
+        self._rtol = value
+        for solver in getattr(self, "_solvers", {}).values():
+            solver.rtol = value
+
     def needs_spd_for(self, dofs: int) -> bool:
         return dofs > self.direct_max_dofs
 

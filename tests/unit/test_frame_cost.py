@@ -168,7 +168,9 @@ def test_symplectic_euler_limit_is_sharp(fc):
 
 
 @pytest.mark.parametrize("text", ["tr_bdf2:240", "symplectic_euler:60:auto", "tr_bdf2:-1:auto", "tr_bdf2:x:auto",
-                                  "tr_bdf2:60:nosuch", "tr_bdf2:90:auto", "nosuch:60:none", "verlet:60:direct"])
+                                  "tr_bdf2:60:nosuch", "tr_bdf2:90:auto", "nosuch:60:none", "verlet:60:direct",
+                                  "tr_bdf2:60:auto:forcing", "tr_bdf2:60:auto:1x=2", "verlet:60:none:a=1",
+                                  "tr_bdf2:60:auto:a=1:b=2"])
 def test_candidate_errors_name_the_field(fc, text):
     with pytest.raises(argparse.ArgumentTypeError, match="^--candidates: "):
         fc.parse_candidate(text)
@@ -178,6 +180,12 @@ def test_parse_candidate(fc):
     c = fc.parse_candidate("tr_bdf2:240:amg-cg")
     assert (c.method, c.h, c.solver) == ("tr_bdf2", 1 / 240, "amg-cg") and c.label == "tr_bdf2 h=1/240 amg-cg"
     assert c.implicit and c.steps_per_frame == 4
+    c = fc.parse_candidate("tr_bdf2:120:auto:forcing=eisenstat-walker,forcing_max=0.3,newton_maxiter=20")
+    assert c.options == (("forcing", "eisenstat-walker"), ("forcing_max", 0.3), ("newton_maxiter", 20))
+    assert c.label == "tr_bdf2 h=1/120 auto forcing=eisenstat-walker forcing_max=0.3 newton_maxiter=20"
+    model = fc.cloth(4)
+    run = fc.make_run(model, c, {"newton_maxiter": 50})
+    assert run.integ.forcing == "eisenstat-walker" and run.integ.newton_maxiter == 20  # the candidate's own win
     e = fc.parse_candidate("verlet:1200:none")
     assert not e.implicit and e.steps_per_frame == 20 and e.label == "verlet h=1/1200"
 
