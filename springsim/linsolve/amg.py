@@ -26,7 +26,10 @@ implicit system's 3x3 block structure:
   it (or breaks down) is stopped, the hierarchy rebuilt and the solve continued from the iterate
   reached. After such a stale rebuild the next ``cooldown`` matrices get fresh hierarchies at once;
   the cooldown doubles after every stale rebuild (up to ``max_cooldown``) and resets when reuse
-  succeeds, so a fast-moving phase wastes one attempt per doubling.
+  succeeds, so a fast-moving phase wastes one attempt per doubling. A matrix *near* the hierarchy's
+  own (relative Frobenius change at most ``nearby``, estimated on every 8th block) is tried even during
+  a cooldown: the Newton iterations of one implicit stage change the matrix by ~1e-3 relative (and a
+  hierarchy serves them), consecutive steps of a falling cloth by 3-10e-2 (and it does not).
 
 The measurements behind these choices are in BENCHMARKS.md, section 5.
 """
@@ -124,6 +127,9 @@ class AMGPreconditioner(Preconditioner):
         Keep the hierarchy across matrices with the same pattern (False: rebuild for every new matrix).
     cooldown, max_cooldown : int
         Fresh hierarchies after a stale rebuild before reuse is tried again, and its doubled maximum.
+    nearby : float
+        Relative change of the matrix (Frobenius, sampled) up to which reuse is tried during a cooldown
+        (0 turns it off).
     sa_options : dict, optional
         Extra keywords for :func:`pyamg.smoothed_aggregation_solver` (then pyamg's setup is used).
     """
@@ -133,7 +139,7 @@ class AMGPreconditioner(Preconditioner):
     def __init__(self, *, near_nullspace: str = "rigid", fmt: str = "bsr", symmetry: str = "hermitian",
                  smoother: str = "block_gauss_seidel", max_coarse: int = 50, rebuild_factor: float = 2.0,
                  rebuild_slack: int = 4, reuse: bool = True, cooldown: int = 4, max_cooldown: int = 64,
-                 sa_options: dict | None = None):
+                 nearby: float = 0.02, sa_options: dict | None = None):
         super().__init__()
         if symmetry not in ("hermitian", "nonsymmetric"):
             raise ValueError(f"symmetry must be 'hermitian' or 'nonsymmetric', got {symmetry!r}")
@@ -151,6 +157,10 @@ class AMGPreconditioner(Preconditioner):
         self.reuse = bool(reuse)
         self.cooldown = int(cooldown)
         self.max_cooldown = max(int(max_cooldown), self.cooldown)
+        if not nearby >= 0.0:
+            raise ValueError(f"nearby must be >= 0, got {nearby!r}")
+        self.nearby = float(nearby)
+        self.nearby_reuses = 0
         self._next_cooldown = self.cooldown
         self._skip = 0
         self._trial = False
@@ -192,6 +202,10 @@ class AMGPreconditioner(Preconditioner):
             if self.reuse and self._skip == 0:
                 self._trial = True  # a reuse attempt on a new matrix; record() judges it
                 return self._precond, 0.0, False
+            if self.reuse and self._near(A):  # during a cooldown, but close to the hierarchy's matrix
+                self._trial = True
+                self.nearby_reuses += 1
+                return self._precond, 0.0, False
             self._skip = max(self._skip - 1, 0)
         t0 = time.perf_counter()
         self.ml = self._precond = None  # free the old hierarchy first: only one is alive at the peak
@@ -200,6 +214,19 @@ class AMGPreconditioner(Preconditioner):
         self.key = key
         self.version = A.version
         return self._precond, time.perf_counter() - t0, True
+
+    def _near(self, A) -> bool:
+        """Whether ``A`` differs from the matrix the hierarchy was built for by at most ``nearby`` (relative
+        Frobenius norm over every 8th block: one pass over an eighth of the data)."""
+        if self.nearby <= 0.0 or self.fmt != "bsr":
+            return False
+        old = getattr(self.ml.levels[0].A, "data", None)
+        new = A.bsr.data
+        if old is None or old.shape != new.shape:
+            return False
+        o, d = old[::8], new[::8] - old[::8]
+        scale = float(np.vdot(o, o))
+        return scale > 0.0 and float(np.vdot(d, d)) <= self.nearby ** 2 * scale
 
     def _build(self, A, key=None):
         # pyamg's setup draws from NumPy's global random state (the spectral-radius estimate of its
@@ -308,7 +335,7 @@ class AMGPreconditioner(Preconditioner):
             return {}
         return {"levels": [int(lv.A.shape[0]) for lv in self.ml.levels],
                 "operator_complexity": float(self.ml.operator_complexity()), "builds": self.builds,
-                "stale_rebuilds": self.stale_rebuilds}
+                "stale_rebuilds": self.stale_rebuilds, "nearby_reuses": self.nearby_reuses}
 
     def default_maxiter(self, n: int) -> int:
         return 500

@@ -113,9 +113,10 @@ class LinearSolverIterative(LinearSolver):
             t0 += s2
             restart = x if (np.all(np.isfinite(x)) and info.residual < 1.0) else x0
             x, info2 = self.krylov(A.bsr, b, apply, restart, rtol=self.rtol, atol=self.atol, maxiter=maxiter)
+            fresh_iterations = info2.iterations  # the new hierarchy's own count: its baseline
             info2.iterations += info.iterations
             info = info2
-        P.record(info.iterations, fresh, info.breakdown is None)
+        P.record(fresh_iterations if stale else info.iterations, fresh, info.breakdown is None)
         details = dict(P.describe(), rebuilt=fresh, stale_rebuild=stale, warm_start=x0 is not None,
                        breakdown=info.breakdown)
         return self._finish(A, b, x, info, setup_s, time.perf_counter() - t0, details)

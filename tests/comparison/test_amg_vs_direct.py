@@ -95,6 +95,53 @@ def test_stale_signal_triggers_rebuild_and_keeps_accuracy():
     assert solver.preconditioner.builds == 3 and solver.preconditioner.stale_rebuilds == 2
 
 
+def test_stale_rebuild_records_the_new_hierarchys_own_iterations_as_baseline():
+    """After a stale rebuild the baseline is the count of the rebuilt hierarchy's part of the solve, not the
+    total with the stale attempt (which would inflate the next budget, and with it every later one)."""
+    from springsim.assembly import SystemAssembler
+    from springsim.forces import make_force_terms
+    from springsim.linsolve import make_linear_solver
+
+    model = benchmark_cloth(10)
+    asm = SystemAssembler(model, make_force_terms(model))
+    solver = make_linear_solver("amg-cg", rtol=1e-8, rebuild_factor=0.0, rebuild_slack=1, cooldown=0, nearby=0.0)
+    rng = np.random.default_rng(5)
+    for k in range(2):
+        q = model.particle_q + 0.02 * rng.standard_normal(model.particle_q.shape)
+        A = asm.assemble(q, model.particle_qd, BENCHMARK_DT ** 2, BENCHMARK_DT, "spd")
+        res = solver.solve(A, rng.standard_normal(A.shape[0]))
+        assert res.converged
+    assert res.info["stale_rebuild"]
+    assert solver.preconditioner.baseline == res.iterations - 1  # the stale attempt had a budget of 1
+
+
+def test_nearby_matrix_reuses_the_hierarchy_during_a_cooldown():
+    """During a cooldown a matrix within ``nearby`` of the hierarchy's own is tried with it (and converges
+    to the tolerance); a farther one gets a fresh hierarchy."""
+    from springsim.assembly import SystemAssembler
+    from springsim.forces import make_force_terms
+    from springsim.linsolve import make_linear_solver
+
+    model = benchmark_cloth(10)
+    asm = SystemAssembler(model, make_force_terms(model))
+    rng = np.random.default_rng(9)
+    q0 = model.particle_q + 0.02 * rng.standard_normal(model.particle_q.shape)
+    b = rng.standard_normal(3 * model.free_count)
+    results = {}
+    for nearby in (0.0, 0.02):
+        solver = make_linear_solver("amg-cg", rtol=1e-8, nearby=nearby)
+        P = solver.preconditioner
+        solver.solve(asm.assemble(q0, model.particle_qd, BENCHMARK_DT ** 2, BENCHMARK_DT, "spd"), b)
+        P._skip = P.cooldown  # as after a stale rebuild
+        near = solver.solve(asm.assemble(q0 + 1e-6, model.particle_qd, BENCHMARK_DT ** 2, BENCHMARK_DT, "spd"), b)
+        far = solver.solve(asm.assemble(model.particle_q + 0.05 * rng.standard_normal(q0.shape), model.particle_qd,
+                                        BENCHMARK_DT ** 2, BENCHMARK_DT, "spd"), b)
+        assert near.converged and far.converged and near.residual <= 1e-8
+        results[nearby] = (near.info["rebuilt"], far.info["rebuilt"], P.nearby_reuses)
+    assert results[0.0] == (True, True, 0)
+    assert results[0.02] == (False, True, 1)
+
+
 @pytest.mark.parametrize("nullspace,fmt", [("translations", "bsr"), ("rigid", "csr")])
 def test_amg_variants_agree(nullspace, fmt):
     """Near-null-space and format variants converge to the same solution."""
