@@ -124,12 +124,13 @@ class DistributedImplicitEuler(DistributedIntegrator):
         R, rnorm, ratio = self._residual(q, v, v_hat, c)
         converged, step, failed = False, 0.0, []
         inexact = converge and self.forcing == "eisenstat-walker"
-        eta, rnorm_prev = None, 0.0
+        eta, rnorm_prev, confirm = None, 0.0, False
         for it in range(maxiter):
             sysm.assemble(q, v, c * c, c, self.jacobian, exchange=False)  # the residual exchanged (q, v)
             stats.precision_loss = max(stats.precision_loss, sysm.precision_loss())
             if inexact:  # global norms: every rank computes the same forcing term
-                eta = forcing_term(it, rnorm, rnorm_prev, eta or 0.0, eta_max=self.forcing_max, floor=sysm.rtol)
+                eta = sysm.rtol if confirm else forcing_term(it, rnorm, rnorm_prev, eta or 0.0, eta_max=self.forcing_max,
+                                                             floor=sysm.rtol)
                 rnorm_prev = rnorm
             res = sysm.solve(R, x0=self._warm if it == 0 else None, rtol=eta)
             failure = record_linear_solve(stats, res, sysm.all_finite(res.x))
@@ -154,6 +155,9 @@ class DistributedImplicitEuler(DistributedIntegrator):
             if not np.isfinite(step):
                 break
             if converge and step < self.newton_tol and ratio <= self.residual_rtol:
+                if inexact and res.residual > sysm.rtol:  # a loose update passed: confirm with one to rtol (serial)
+                    confirm = True
+                    continue
                 converged = True
                 break
         ok = report_stage(stats, converge=converge, converged=converged, failed=failed, maxiter=maxiter, step=step,

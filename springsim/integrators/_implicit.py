@@ -32,8 +32,11 @@ inexact Newton steps (Dembo, Eisenstat and Steihaug 1982): each solve of ``A dv 
 residual ``eta_k`` of Eisenstat and Walker (1996, choice 2; :func:`forcing_term`), loose while ``|R|``
 is far from zero (0.1 at the first iteration), tightening as it converges quadratically, never below the
 solver's ``rtol``. A solve to ``rtol`` = 1e-6 at the first iterations buys nothing the next iteration keeps:
-with the ``spd`` Jacobian Newton converges only linearly anyway. The stopping rule is unchanged, so the
-result is a converged stage either way (the two differ by the Newton tolerance); direct solvers ignore it.
+with the ``spd`` Jacobian Newton converges only linearly anyway. The stopping rule needs an update from a
+solve to the solver's ``rtol``: when a loose update passes it, one more iteration solves to ``rtol`` and
+decides (an inexact update can be small while the iterate is not converged: on the 64 x 64 benchmark
+cloth, stopping on loose updates moved TR-BDF2's trajectory 2 cm from the converged one). So the result
+is a converged stage either way (the two differ by the Newton tolerance); direct solvers ignore it.
 The default ``"fixed"`` solves every system to the solver's ``rtol``.
 
 Linear solves. Each result is checked (``LinearSolveResult.converged``). A solve that missed its
@@ -335,15 +338,17 @@ class ImplicitIntegrator(Integrator):
         converged = False
         step = 0.0
         inexact = converge and self.forcing == "eisenstat-walker"
-        eta, rnorm_prev = None, 0.0
+        eta, rnorm_prev, confirm = None, 0.0, False
         for it in range(maxiter):
             A = asm.assemble(q, v, c * c, c, mode)
             stats.assembly_s += asm.last_time_s
             stats.precision_loss = max(stats.precision_loss, asm.precision_loss(A))
             if inexact:
-                eta = forcing_term(it, rnorm, rnorm_prev, eta or 0.0, eta_max=self.forcing_max, floor=self.solver.rtol)
+                eta = self.solver.rtol if confirm else forcing_term(it, rnorm, rnorm_prev, eta or 0.0,
+                                                                     eta_max=self.forcing_max, floor=self.solver.rtol)
                 rnorm_prev = rnorm
-            dv = self._linear_solve(A, asm.gather(R), stats, first=(it == 0), rtol=eta).x
+            res = self._linear_solve(A, asm.gather(R), stats, first=(it == 0), rtol=eta)
+            dv = res.x
             step = float(np.linalg.norm(dv))
             stats.newton_iterations += 1
             def trial(alpha, v=v, dv=dv, judged=True):
@@ -363,6 +368,9 @@ class ImplicitIntegrator(Integrator):
             if not np.isfinite(step):
                 break
             if converge and step < self.newton_tol and ratio <= self.residual_rtol:
+                if inexact and res.residual > self.solver.rtol:  # a loose update passed: confirm with one to rtol
+                    confirm = True
+                    continue
                 converged = True
                 break
         return q, v, step, rnorm, ratio, converged
