@@ -16,6 +16,7 @@ the parameter (``jacobian: must be one of ...``); :class:`SolverConfig` reports 
 
 from __future__ import annotations
 
+import importlib
 import math
 from dataclasses import dataclass, field, fields, replace
 
@@ -227,24 +228,15 @@ class SolverConfig:
         if self.backend is not None and self.backend not in BACKENDS:
             raise SceneError("solver.backend", f"unknown backend {self.backend!r:.60}; choose one of "
                                                f"{', '.join(BACKENDS)}")
-        if self.partitioner is not None:
-            from .distributed.partition import PARTITIONERS
-
-            if self.partitioner not in PARTITIONERS:
-                raise SceneError("solver.partitioner", f"unknown partitioner {self.partitioner!r:.60}; choose one "
-                                                       f"of {', '.join(PARTITIONERS)}")
-        if self.forcing is not None:
-            from .integrators._implicit import FORCING_RULES
-
-            if self.forcing not in FORCING_RULES:
-                raise SceneError("solver.forcing", f"unknown forcing rule {self.forcing!r:.60}; choose one of "
-                                                   f"{', '.join(FORCING_RULES)}")
-        if self.jacobian is not None:
-            from .forces import JACOBIAN_MODES
-
-            if self.jacobian not in JACOBIAN_MODES:
-                raise SceneError("solver.jacobian", f"unknown jacobian mode {self.jacobian!r:.60}; choose one of "
-                                                    f"{', '.join(JACOBIAN_MODES)}")
+        for name, what, module, choices in (("partitioner", "partitioner", ".distributed.partition", "PARTITIONERS"),
+                                            ("forcing", "forcing rule", ".integrators._implicit", "FORCING_RULES"),
+                                            ("jacobian", "jacobian mode", ".forces", "JACOBIAN_MODES")):
+            value = getattr(self, name)
+            if value is not None:
+                allowed = getattr(importlib.import_module(module, __package__), choices)
+                if value not in allowed:
+                    raise SceneError(f"solver.{name}", f"unknown {what} {value!r:.60}; choose one of "
+                                                       f"{', '.join(allowed)}")
         return self
 
     @classmethod

@@ -21,7 +21,7 @@ import numpy as np
 
 from ..errors import SceneError, SolverError
 from ..integrators import StepStats
-from ..integrators._implicit import backtrack, check_newton_options, forcing_term, record_linear_solve, report_stage
+from ..integrators._implicit import backtrack, forcing_term, record_linear_solve, report_stage, set_newton_options
 
 __all__ = ["DISTRIBUTED_INTEGRATORS", "DistributedIntegrator", "DistributedExplicitEuler",
            "DistributedSymplecticEuler", "DistributedMidpoint", "DistributedLinearizedImplicit",
@@ -92,17 +92,9 @@ class DistributedImplicitEuler(DistributedIntegrator):
         super().__init__(system)
         jacobian = "spd" if jacobian is None else jacobian
         newton_maxiter = 5 if newton_maxiter is None else newton_maxiter
-        check_newton_options(jacobian, newton_tol, newton_maxiter, residual_rtol, on_nonconvergence, forcing,
-                             forcing_max)
-        self.forcing = forcing
-        self.forcing_max = float(forcing_max)
-        self.jacobian = jacobian
-        self.newton_tol = float(newton_tol)
-        self.newton_maxiter = int(newton_maxiter)
-        self.residual_rtol = float(residual_rtol)
-        self.line_search = bool(line_search)
-        self.min_step = float(min_step)
-        self.on_nonconvergence = on_nonconvergence
+        set_newton_options(self, jacobian=jacobian, newton_tol=newton_tol, newton_maxiter=newton_maxiter,
+                           residual_rtol=residual_rtol, on_nonconvergence=on_nonconvergence, line_search=line_search,
+                           min_step=min_step, forcing=forcing, forcing_max=forcing_max)
         self.mass = system.mass[:, None]
         self._mass_norm = float(np.sqrt(3.0) * np.sqrt(system.mpi.allreduce(float(np.sum(system.mass ** 2)))))
         self._warm = None

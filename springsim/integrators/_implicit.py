@@ -65,7 +65,7 @@ from ._base import PRECISION_LOSS_LIMIT, Integrator, StepStats
 _log = logger.getChild("integrators")
 
 __all__ = ["FORCING_RULES", "ImplicitIntegrator", "backtrack", "check_newton_options", "forcing_term", "report_stage",
-           "record_linear_solve"]
+           "record_linear_solve", "set_newton_options"]
 
 #: Rules for the relative tolerance of a Newton stage's linear solves (``forcing``; module docstring).
 FORCING_RULES = ("fixed", "eisenstat-walker")
@@ -103,6 +103,22 @@ def backtrack(trial, rnorm: float, *, enabled: bool, min_step: float):
         if not enabled or rn <= (1.0 - 1e-4 * alpha) * rnorm or alpha <= min_step or not np.isfinite(rnorm):
             return alpha, result
         alpha *= 0.5
+
+
+def set_newton_options(obj, *, jacobian: str, newton_tol, newton_maxiter, residual_rtol, on_nonconvergence: str,
+                       line_search, min_step, forcing: str, forcing_max) -> None:
+    """Validate (:func:`check_newton_options`) and set the options every Newton stage solver has as attributes
+    of ``obj`` (the serial and the distributed implicit integrators)."""
+    check_newton_options(jacobian, newton_tol, newton_maxiter, residual_rtol, on_nonconvergence, forcing, forcing_max)
+    obj.jacobian = jacobian
+    obj.newton_tol = float(newton_tol)
+    obj.newton_maxiter = int(newton_maxiter)
+    obj.residual_rtol = float(residual_rtol)
+    obj.on_nonconvergence = on_nonconvergence
+    obj.line_search = bool(line_search)
+    obj.min_step = float(min_step)
+    obj.forcing = forcing
+    obj.forcing_max = float(forcing_max)
 
 
 def check_newton_options(jacobian: str, newton_tol, newton_maxiter, residual_rtol, on_nonconvergence: str,
@@ -250,17 +266,9 @@ class ImplicitIntegrator(Integrator):
             jacobian = "spd" if self.solver.needs_spd_for(3 * model.free_count) else "exact"
         if newton_maxiter is None:
             newton_maxiter = self.default_newton_maxiter
-        check_newton_options(jacobian, newton_tol, newton_maxiter, residual_rtol, on_nonconvergence, forcing,
-                             forcing_max)
-        self.forcing = forcing
-        self.forcing_max = float(forcing_max)
-        self.jacobian = jacobian
-        self.newton_tol = float(newton_tol)
-        self.newton_maxiter = int(newton_maxiter)
-        self.residual_rtol = float(residual_rtol)
-        self.on_nonconvergence = on_nonconvergence
-        self.line_search = bool(line_search)
-        self.min_step = float(min_step)
+        set_newton_options(self, jacobian=jacobian, newton_tol=newton_tol, newton_maxiter=newton_maxiter,
+                           residual_rtol=residual_rtol, on_nonconvergence=on_nonconvergence, line_search=line_search,
+                           min_step=min_step, forcing=forcing, forcing_max=forcing_max)
         self.escalate_jacobian = bool(escalate_jacobian)
         if escalate_after is not None:
             _check_count("escalate_after", escalate_after)
