@@ -21,7 +21,7 @@ import numpy as np
 
 from ..errors import SceneError, SolverError
 from ..integrators import StepStats
-from ..integrators._implicit import backtrack, forcing_term, record_linear_solve, report_stage, set_newton_options
+from ..integrators._implicit import StageForcing, backtrack, record_linear_solve, report_stage, set_newton_options
 
 __all__ = ["DISTRIBUTED_INTEGRATORS", "DistributedIntegrator", "DistributedExplicitEuler",
            "DistributedSymplecticEuler", "DistributedMidpoint", "DistributedLinearizedImplicit",
@@ -115,16 +115,12 @@ class DistributedImplicitEuler(DistributedIntegrator):
         q = q_hat + c * v
         R, rnorm, ratio = self._residual(q, v, v_hat, c)
         converged, step, failed = False, 0.0, []
-        inexact = converge and self.forcing == "eisenstat-walker"
-        eta, rnorm_prev, confirm = None, 0.0, False
+        # global norms and residuals: every rank computes the same forcing terms and decisions
+        forcing = StageForcing(self.forcing if converge else "fixed", eta_max=self.forcing_max, floor=sysm.rtol)
         for it in range(maxiter):
             sysm.assemble(q, v, c * c, c, self.jacobian, exchange=False)  # the residual exchanged (q, v)
             stats.precision_loss = max(stats.precision_loss, sysm.precision_loss())
-            if inexact:  # global norms: every rank computes the same forcing term
-                eta = sysm.rtol if confirm else forcing_term(it, rnorm, rnorm_prev, eta or 0.0, eta_max=self.forcing_max,
-                                                             floor=sysm.rtol)
-                rnorm_prev = rnorm
-            res = sysm.solve(R, x0=self._warm if it == 0 else None, rtol=eta)
+            res = sysm.solve(R, x0=self._warm if it == 0 else None, rtol=forcing.rtol(rnorm))
             failure = record_linear_solve(stats, res, sysm.all_finite(res.x))
             if failure:
                 failed.append(failure)
@@ -146,10 +142,7 @@ class DistributedImplicitEuler(DistributedIntegrator):
                                                        min_step=self.min_step)
             if not np.isfinite(step):
                 break
-            if converge and step < self.newton_tol and ratio <= self.residual_rtol:
-                if inexact and res.residual > sysm.rtol:  # a loose update passed: confirm with one to rtol (serial)
-                    confirm = True
-                    continue
+            if converge and step < self.newton_tol and ratio <= self.residual_rtol and forcing.certified(res.residual):
                 converged = True
                 break
         ok = report_stage(stats, converge=converge, converged=converged, failed=failed, maxiter=maxiter, step=step,

@@ -64,8 +64,8 @@ from ._base import PRECISION_LOSS_LIMIT, Integrator, StepStats
 
 _log = logger.getChild("integrators")
 
-__all__ = ["FORCING_RULES", "ImplicitIntegrator", "backtrack", "check_newton_options", "forcing_term", "report_stage",
-           "record_linear_solve", "set_newton_options"]
+__all__ = ["FORCING_RULES", "ImplicitIntegrator", "StageForcing", "backtrack", "check_newton_options", "forcing_term",
+           "report_stage", "record_linear_solve", "set_newton_options"]
 
 #: Rules for the relative tolerance of a Newton stage's linear solves (``forcing``; module docstring).
 FORCING_RULES = ("fixed", "eisenstat-walker")
@@ -86,6 +86,36 @@ def forcing_term(k: int, rnorm: float, rnorm_prev: float, eta_prev: float, *, et
         if safeguard > 0.1:
             eta = max(eta, safeguard)
     return max(min(eta, eta_max), floor)
+
+
+class StageForcing:
+    """The linear tolerances of one Newton stage (module docstring, "Forcing").
+
+    :meth:`rtol` before each solve gives its relative tolerance (None: the solver's own, the ``"fixed"``
+    rule); :meth:`certified` tells whether an update that passed the stopping rule may end the stage (it came
+    from a solve to ``floor``), and otherwise makes the next solve one to ``floor``.
+    """
+
+    def __init__(self, rule: str, *, eta_max: float, floor: float):
+        self.on = rule == "eisenstat-walker"
+        self.eta_max, self.floor = eta_max, floor
+        self.k, self.eta, self.rnorm_prev, self.confirm = 0, 0.0, 0.0, False
+
+    def rtol(self, rnorm: float) -> float | None:
+        """The next solve's relative tolerance, given the residual norm ``|R|`` it solves for."""
+        if not self.on:
+            return None
+        self.eta = self.floor if self.confirm else forcing_term(self.k, rnorm, self.rnorm_prev, self.eta,
+                                                                eta_max=self.eta_max, floor=self.floor)
+        self.k, self.rnorm_prev = self.k + 1, rnorm
+        return self.eta
+
+    def certified(self, residual: float) -> bool:
+        """Whether the update of a solve that reached the relative residual ``residual`` may end the stage."""
+        if not self.on or residual <= self.floor:
+            return True
+        self.confirm = True  # a loose update passed: the next one is solved to the floor and decides
+        return False
 
 
 def backtrack(trial, rnorm: float, *, enabled: bool, min_step: float):
@@ -345,17 +375,12 @@ class ImplicitIntegrator(Integrator):
         R, rnorm, ratio = self._residual(q, v, v_hat, c, f, stats)
         converged = False
         step = 0.0
-        inexact = converge and self.forcing == "eisenstat-walker"
-        eta, rnorm_prev, confirm = None, 0.0, False
+        forcing = StageForcing(self.forcing if converge else "fixed", eta_max=self.forcing_max, floor=self.solver.rtol)
         for it in range(maxiter):
             A = asm.assemble(q, v, c * c, c, mode)
             stats.assembly_s += asm.last_time_s
             stats.precision_loss = max(stats.precision_loss, asm.precision_loss(A))
-            if inexact:
-                eta = self.solver.rtol if confirm else forcing_term(it, rnorm, rnorm_prev, eta or 0.0,
-                                                                     eta_max=self.forcing_max, floor=self.solver.rtol)
-                rnorm_prev = rnorm
-            res = self._linear_solve(A, asm.gather(R), stats, first=(it == 0), rtol=eta)
+            res = self._linear_solve(A, asm.gather(R), stats, first=(it == 0), rtol=forcing.rtol(rnorm))
             dv = res.x
             step = float(np.linalg.norm(dv))
             stats.newton_iterations += 1
@@ -375,10 +400,7 @@ class ImplicitIntegrator(Integrator):
             stats.extra["min_line_search_step"] = min(alpha, stats.extra.get("min_line_search_step", 1.0))
             if not np.isfinite(step):
                 break
-            if converge and step < self.newton_tol and ratio <= self.residual_rtol:
-                if inexact and res.residual > self.solver.rtol:  # a loose update passed: confirm with one to rtol
-                    confirm = True
-                    continue
+            if converge and step < self.newton_tol and ratio <= self.residual_rtol and forcing.certified(res.residual):
                 converged = True
                 break
         return q, v, step, rnorm, ratio, converged

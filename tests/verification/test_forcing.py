@@ -25,6 +25,19 @@ def test_forcing_term_rule():
     assert forcing_term(1, float("nan"), 1.0, 0.1, **kw) == 0.1
 
 
+def test_stage_forcing_confirms_a_loose_update_before_the_stage_ends():
+    """A stage's schedule: the solver's own rtol under "fixed"; under Eisenstat-Walker a loose update that passes
+    the stopping rule is not certified, and the next solve is to the floor."""
+    from springsim.integrators._implicit import StageForcing
+
+    fixed = StageForcing("fixed", eta_max=0.1, floor=1e-6)
+    assert fixed.rtol(1.0) is None and fixed.certified(0.5)
+    ew = StageForcing("eisenstat-walker", eta_max=0.1, floor=1e-6)
+    assert ew.rtol(1.0) == 0.1 and ew.rtol(0.1) == pytest.approx(0.009)
+    assert not ew.certified(0.009)
+    assert ew.rtol(1e-4) == 1e-6 and ew.certified(9e-7)
+
+
 def _system(n=14):
     from springsim.assembly import SystemAssembler
     from springsim.forces import make_force_terms
