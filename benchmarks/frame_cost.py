@@ -253,7 +253,8 @@ def parse_candidate(text: str) -> Candidate:
 
     ``1/h`` must be a whole multiple of the frame rate (60); implicit methods take a registered linear
     solver, explicit ones (and ``verlet``) ``none``; the optional fourth field gives integrator options
-    (numbers where they parse as numbers). Errors are one line naming the field.
+    (``true``/``false`` as booleans, numbers where they parse as numbers, else strings). Errors are one line
+    naming the field.
     """
     from springsim.integrators import INTEGRATORS
     from springsim.linsolve import LINEAR_SOLVERS
@@ -267,10 +268,13 @@ def parse_candidate(text: str) -> Candidate:
         name, eq, value = item.partition("=")
         if not eq or not name.isidentifier():
             raise argparse.ArgumentTypeError(f"--candidates: expected name=value options, got {item!r}")
-        try:
-            value = float(value) if any(ch in value for ch in ".eE") else int(value)
-        except ValueError:
-            pass
+        if value.lower() in ("true", "false"):
+            value = value.lower() == "true"
+        else:
+            try:
+                value = float(value) if any(ch in value for ch in ".eE") else int(value)
+            except ValueError:
+                pass
         options.append((name, value))
     if method not in INTEGRATORS and method != "verlet":
         raise argparse.ArgumentTypeError(f"--candidates: unknown method {method!r} (an integrator or verlet)")

@@ -182,6 +182,7 @@ def test_parse_candidate(fc):
     assert c.implicit and c.steps_per_frame == 4
     c = fc.parse_candidate("tr_bdf2:120:auto:forcing=eisenstat-walker,forcing_max=0.3,newton_maxiter=20")
     assert c.options == (("forcing", "eisenstat-walker"), ("forcing_max", 0.3), ("newton_maxiter", 20))
+    assert fc.parse_candidate("tr_bdf2:120:auto:line_search=False").options == (("line_search", False),)
     assert c.label == "tr_bdf2 h=1/120 auto forcing=eisenstat-walker forcing_max=0.3 newton_maxiter=20"
     model = fc.cloth(4)
     run = fc.make_run(model, c, {"newton_maxiter": 50})
