@@ -225,10 +225,8 @@ class SolverConfig:
                     check(value)
                 except SceneError as e:
                     raise SceneError(f"solver.{self.yaml_key(name)}", e.message) from None
-        if self.backend is not None and self.backend not in BACKENDS:
-            raise SceneError("solver.backend", f"unknown backend {self.backend!r:.60}; choose one of "
-                                               f"{', '.join(BACKENDS)}")
-        for name, what, module, choices in (("partitioner", "partitioner", ".distributed.partition", "PARTITIONERS"),
+        for name, what, module, choices in (("backend", "backend", ".options", "BACKENDS"),
+                                            ("partitioner", "partitioner", ".distributed.partition", "PARTITIONERS"),
                                             ("forcing", "forcing rule", ".integrators._implicit", "FORCING_RULES"),
                                             ("jacobian", "jacobian mode", ".forces", "JACOBIAN_MODES")):
             value = getattr(self, name)

@@ -36,11 +36,12 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
     from ..distributed.partition import PARTITIONERS
     from ..forces import JACOBIAN_MODES
     from ..integrators import INTEGRATORS
+    from ..integrators._implicit import FORCING_RULES
     from ..linsolve import LINEAR_SOLVERS
 
     SolverConfig.add_arguments(p, choices={"integrator": list(INTEGRATORS), "linear_solver": list(LINEAR_SOLVERS),
                                            "jacobian": list(JACOBIAN_MODES), "backend": list(BACKENDS),
-                                           "partitioner": list(PARTITIONERS)})
+                                           "partitioner": list(PARTITIONERS), "forcing": list(FORCING_RULES)})
     g = p.add_mutually_exclusive_group()
     g.add_argument("-v", "--verbose", action="count", default=0,
                    help="also log every set-up phase with its time (default: progress every few seconds and "

@@ -113,7 +113,7 @@ def simulate_distributed(model, integrator: str, dt: float, steps: int, *, comm=
         :class:`~springsim.distributed.system.DistributedSystem`.
     **options
         Options of the implicit integrators: ``jacobian`` (default ``spd``), ``newton_tol``, ``newton_maxiter``,
-        ``residual_rtol``, ``line_search``, ``min_step``, ``on_nonconvergence``.
+        ``residual_rtol``, ``line_search``, ``min_step``, ``on_nonconvergence``, ``forcing``, ``forcing_max``.
 
     Returns
     -------

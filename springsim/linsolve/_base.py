@@ -203,12 +203,11 @@ class LinearSolver(ABC):
             raise ValueError(f"b must have shape ({A.shape[0]},), got {b.shape}")
         if b.size == 0:
             return LinearSolveResult(np.zeros(0), True, 0, 0.0, self.name, backward_error=0.0)
-        if rtol is None:
-            with single_blas_thread():
-                return self._solve(A, b, x0)
-        if not rtol >= 0:
+        if rtol is not None and not rtol >= 0:
             raise ValueError(f"rtol must be >= 0, got {rtol}")
-        saved, self.rtol = self.rtol, float(rtol)
+        saved = self.rtol
+        if rtol is not None:
+            self.rtol = float(rtol)
         try:
             with single_blas_thread():
                 return self._solve(A, b, x0)

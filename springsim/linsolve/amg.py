@@ -199,12 +199,11 @@ class AMGPreconditioner(Preconditioner):
         if self.ml is not None and key is not None and key == self.key:
             if A.version == self.version:  # the very matrix the hierarchy was built for
                 return self._precond, 0.0, False
-            if self.reuse and self._skip == 0:
-                self._trial = True  # a reuse attempt on a new matrix; record() judges it
-                return self._precond, 0.0, False
-            if self.reuse and self._near(A):  # during a cooldown, but close to the hierarchy's matrix
+            # a reuse attempt on a new matrix (record() judges it): outside a cooldown, or during one when the
+            # matrix is close to the hierarchy's own
+            if self.reuse and (self._skip == 0 or self._near(A)):
+                self.nearby_reuses += self._skip > 0
                 self._trial = True
-                self.nearby_reuses += 1
                 return self._precond, 0.0, False
             self._skip = max(self._skip - 1, 0)
         t0 = time.perf_counter()
@@ -224,7 +223,8 @@ class AMGPreconditioner(Preconditioner):
         new = A.bsr.data
         if old is None or old.shape != new.shape:
             return False
-        o, d = old[::8], new[::8] - old[::8]
+        o = old[::8]
+        d = new[::8] - o
         scale = float(np.vdot(o, o))
         return scale > 0.0 and float(np.vdot(d, d)) <= self.nearby ** 2 * scale
 
