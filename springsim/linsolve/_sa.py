@@ -97,7 +97,7 @@ def lanczos_rho(A: sp.bsr_matrix, D: np.ndarray, Dinv: np.ndarray, steps: int = 
 def smoothed_aggregation_levels(A: sp.bsr_matrix, B: np.ndarray, *, theta: float = 0.1, omega: float = 4.0 / 3.0,
                                 max_coarse: int = 50, max_levels: int = 10, lanczos_steps: int = 12,
                                 aggregates: list | None = None, ritz: list | None = None,
-                                warm_lanczos_steps: int = 4):
+                                warm_lanczos_steps: int = 4, kernels: str = "scipy", products: list | None = None):
     """The levels of a smoothed-aggregation hierarchy for the SPD BSR matrix ``A``.
 
     Parameters
@@ -122,6 +122,12 @@ def smoothed_aggregation_levels(A: sp.bsr_matrix, B: np.ndarray, *, theta: float
         The levels' ``ritz`` vectors of a previous call with a matrix of the same pattern: each
         level's estimate then starts from its vector and runs ``warm_lanczos_steps`` steps.
     warm_lanczos_steps : int
+    kernels : {"scipy", "numba"}
+        How the setup's sparse products are computed: scipy's products, or
+        :class:`~springsim.linsolve._kernels.BsrProduct` (pattern once, compiled numeric kernel).
+    products : list of dict, optional
+        The levels' ``products`` of a previous call (``kernels="numba"``): the product patterns are
+        reused where the operands' patterns match.
 
     Returns
     -------
@@ -129,7 +135,8 @@ def smoothed_aggregation_levels(A: sp.bsr_matrix, B: np.ndarray, *, theta: float
         With ``A``, ``B``, ``P``, ``R`` (``R = P^T``) set; the last level has ``A`` and ``B``.
         Every level's ``A`` but the last (the given ``A`` included) gets the attribute
         ``block_D_inv``, its inverted block diagonal, which pyamg's block smoothers then reuse;
-        every level but the last the attribute ``ritz``, the top Ritz vector of ``D^-1 A``.
+        every level but the last the attributes ``ritz``, the top Ritz vector of ``D^-1 A``, and
+        ``products``, the level's product plans (None each with ``kernels="scipy"``).
     aggregates : list of csr_matrix
         The aggregation operator of every level but the last (pass back to reuse).
 
@@ -142,6 +149,8 @@ def smoothed_aggregation_levels(A: sp.bsr_matrix, B: np.ndarray, *, theta: float
     from pyamg.aggregation.tentative import fit_candidates
     from pyamg.multilevel import MultilevelSolver
     from pyamg.strength import symmetric_strength_of_connection
+
+    from ._kernels import bsr_matmat
 
     levels = []
     used = []
@@ -171,7 +180,9 @@ def smoothed_aggregation_levels(A: sp.bsr_matrix, B: np.ndarray, *, theta: float
                              start=start, return_vector=True)
         if not (np.isfinite(rho) and rho > 0.0):
             raise ArithmeticError("spectral radius estimate of D^-1 A broke down (matrix not positive definite)")
-        AT = (Ak @ T).tobsr(blocksize=T.blocksize)
+        old = products[li] if products is not None and li < len(products) else {}
+        plans = {}
+        AT, plans["AT"] = bsr_matmat(Ak, T, kernels, old.get("AT"))
         AT.data = np.matmul(np.repeat(Dinv, np.diff(AT.indptr), axis=0), AT.data)
         AT.data *= omega / rho  # in place: one (nnzb, 3, 6) temporary fewer to page in
         P = (T - AT).tobsr(blocksize=T.blocksize)
@@ -179,9 +190,12 @@ def smoothed_aggregation_levels(A: sp.bsr_matrix, B: np.ndarray, *, theta: float
         level = MultilevelSolver.Level()
         level.A, level.B, level.P, level.R = Ak, Bk, P, R
         level.ritz = y
+        level.products = plans  # the Galerkin products' plans join below
         levels.append(level)
         used.append(agg)
-        Ak = (R @ (Ak @ P)).tobsr(blocksize=(P.blocksize[1], P.blocksize[1]))
+        AP, plans["AP"] = bsr_matmat(Ak, P, kernels, old.get("AP"))
+        Ak, plans["RAP"] = bsr_matmat(R, AP, kernels, old.get("RAP"))
+        del AP
         Ak.symmetry = "hermitian"
         Bk = Bc
     last = MultilevelSolver.Level()

@@ -1,0 +1,123 @@
+"""Compiled numeric kernels for the AMG setup (optional: numba, the ``accel`` extra).
+
+A smoothed-aggregation hierarchy that keeps its aggregates (:mod:`springsim.linsolve._sa`)
+rebuilds the same sparse products on every new matrix: ``A T``, ``A P`` and ``R (A P)`` on each
+level, whose block patterns depend only on the matrix pattern and the aggregates, both fixed for
+a mass-spring system. scipy's ``bsr_matmat`` recomputes the pattern of every product and multiplies
+the blocks in a loop whose trip counts (the block sizes) are only known at run time.
+:class:`BsrProduct` computes the pattern of ``C = X Y`` once and then only the values, with a
+numba kernel compiled for the block sizes (3x3 times 3x6 on the finest level of a cloth, 6x3 times
+3x6 for its Galerkin product, 6x6 on the coarse levels), so the compiler unrolls the block loops:
+about twice scipy's speed for the products of a 195,840-DOF cloth (BENCHMARKS.md, section 5).
+
+The values are summed in the order scipy sums them (block row of ``X``, then the block row of ``Y``
+it selects, then the inner block index), so both paths give bitwise the same product; the pattern
+differs only in keeping blocks that cancel to zero, and in sorted rows. A hierarchy built either way
+is the same to round-off.
+
+``kernels="scipy"`` (or numba absent) keeps scipy's products: that is the pure path, and the tests
+check the compiled one against it.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+
+import numpy as np
+import scipy.sparse as sp
+
+__all__ = ["KERNELS", "BsrProduct", "bsr_matmat", "numba_available", "resolve_kernels"]
+
+#: Accepted values of the ``kernels`` option.
+KERNELS = ("auto", "numba", "scipy")
+
+
+def numba_available() -> bool:
+    """Whether numba can be imported (without importing it)."""
+    return importlib.util.find_spec("numba") is not None
+
+
+def resolve_kernels(kernels: str) -> str:
+    """``"numba"`` or ``"scipy"`` for the option value ``kernels`` (``"auto"``: numba when installed).
+
+    Raises
+    ------
+    ValueError
+        For a value not in :data:`KERNELS`, or ``"numba"`` without numba installed.
+    """
+    if kernels not in KERNELS:
+        raise ValueError(f"kernels must be one of {', '.join(map(repr, KERNELS))}, got {kernels!r}")
+    if kernels == "scipy":
+        return "scipy"
+    if numba_available():
+        return "numba"
+    if kernels == "numba":
+        raise ValueError("kernels='numba' needs numba, which is not installed (pip install 'springsim[accel]')")
+    return "scipy"
+
+
+_compiled = None
+
+
+def _kernel():
+    """The numba kernel (compiled on first use, cached on disk by numba)."""
+    global _compiled
+    if _compiled is None:
+        from ._numba_kernels import bsr_matmat_numeric
+        _compiled = bsr_matmat_numeric
+    return _compiled
+
+
+class BsrProduct:
+    """The product ``C = X Y`` of two BSR matrices with fixed block patterns.
+
+    Built from one pair ``(X, Y)``: the block pattern of ``C`` (all blocks that the patterns can
+    produce, sorted, none dropped for being numerically zero). Called with matrices of the same
+    patterns (:meth:`matches`), it computes only the values of ``C``.
+    """
+
+    def __init__(self, X: sp.bsr_matrix, Y: sp.bsr_matrix):
+        R, K = X.blocksize
+        K2, N = Y.blocksize
+        if K != K2 or X.shape[1] != Y.shape[0]:
+            raise ValueError(f"incompatible BSR operands {X.shape} {X.blocksize} and {Y.shape} {Y.blocksize}")
+        # the block pattern of C: the product of the block patterns with positive entries (nothing cancels)
+        Xs = sp.csr_matrix((np.ones(X.indices.size), X.indices, X.indptr), shape=(X.shape[0] // R, X.shape[1] // K))
+        Ys = sp.csr_matrix((np.ones(Y.indices.size), Y.indices, Y.indptr), shape=(Y.shape[0] // K, Y.shape[1] // N))
+        Cs = Xs @ Ys
+        Cs.sort_indices()
+        self.indptr, self.indices = Cs.indptr, Cs.indices
+        self.shape, self.blocksize = (X.shape[0], Y.shape[1]), (R, N)
+        self._patterns = (X.indptr.copy(), X.indices.copy(), Y.indptr.copy(), Y.indices.copy())
+        self._dims = (X.shape, X.blocksize, Y.shape, Y.blocksize)
+        self._marker = np.zeros(Y.shape[1] // N, dtype=Cs.indices.dtype)
+
+    def matches(self, X: sp.bsr_matrix, Y: sp.bsr_matrix) -> bool:
+        """Whether ``X`` and ``Y`` have the block patterns this product was built for."""
+        if (X.shape, X.blocksize, Y.shape, Y.blocksize) != self._dims:
+            return False
+        return all(np.array_equal(a, b) for a, b in zip(self._patterns, (X.indptr, X.indices, Y.indptr, Y.indices)))
+
+    def __call__(self, X: sp.bsr_matrix, Y: sp.bsr_matrix) -> sp.bsr_matrix:
+        """``X @ Y`` as a BSR matrix with this product's pattern (``X`` and ``Y`` must match it)."""
+        R, N = self.blocksize
+        K = X.blocksize[1]
+        data = np.empty((self.indices.size, R, N))
+        _kernel()(X.indptr, X.indices, np.ascontiguousarray(X.data), Y.indptr, Y.indices,
+                  np.ascontiguousarray(Y.data), self.indptr, self.indices, data, self._marker, R, K, N)
+        return sp.bsr_matrix((data, self.indices, self.indptr), shape=self.shape, copy=False)
+
+
+def bsr_matmat(X: sp.bsr_matrix, Y: sp.bsr_matrix, kernels: str = "scipy",
+               plan: BsrProduct | None = None) -> tuple[sp.bsr_matrix, BsrProduct | None]:
+    """``(X @ Y, plan)`` as BSR with blocks ``(X.blocksize[0], Y.blocksize[1])``.
+
+    With ``kernels="numba"`` the product goes through ``plan`` when it matches the operands' patterns,
+    else through a new :class:`BsrProduct` (returned for the next call); with ``"scipy"`` through
+    scipy's product (``plan`` None).
+    """
+    if kernels == "numba":
+        if plan is None or not plan.matches(X, Y):
+            plan = BsrProduct(X, Y)
+        return plan(X, Y), plan
+    return (X @ Y).tobsr(blocksize=(X.blocksize[0], Y.blocksize[1])), None
