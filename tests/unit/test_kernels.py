@@ -43,7 +43,7 @@ def test_product_matches_scipy(R, K, N):
 def test_plan_is_rebuilt_when_a_pattern_changes():
     X = _random_bsr(40, 30, (3, 3), 0.1, 1)
     Y = _random_bsr(30, 20, (3, 6), 0.1, 2)
-    C, plan = bsr_matmat(X, Y, "numba")
+    _, plan = bsr_matmat(X, Y, "numba")
     Y2 = _random_bsr(30, 20, (3, 6), 0.15, 5)
     assert not plan.matches(X, Y2)
     C2, plan2 = bsr_matmat(X, Y2, "numba", plan)
