@@ -26,7 +26,7 @@ import importlib.util
 import numpy as np
 import scipy.sparse as sp
 
-__all__ = ["KERNELS", "BsrProduct", "bsr_matmat", "numba_available", "resolve_kernels"]
+__all__ = ["KERNELS", "BsrProduct", "block_gauss_seidel_forward", "bsr_matmat", "numba_available", "resolve_kernels"]
 
 #: Accepted values of the ``kernels`` option.
 KERNELS = ("auto", "numba", "scipy")
@@ -56,16 +56,10 @@ def resolve_kernels(kernels: str) -> str:
     return "scipy"
 
 
-_compiled = None
-
-
-def _kernel():
-    """The numba kernel (compiled on first use, cached on disk by numba)."""
-    global _compiled
-    if _compiled is None:
-        from ._numba_kernels import bsr_matmat_numeric
-        _compiled = bsr_matmat_numeric
-    return _compiled
+def _numba():
+    """The numba kernels' module (compiled on first use, cached on disk by numba)."""
+    from . import _numba_kernels
+    return _numba_kernels
 
 
 class BsrProduct:
@@ -103,7 +97,7 @@ class BsrProduct:
         R, N = self.blocksize
         K = X.blocksize[1]
         data = np.empty((self.indices.size, R, N))
-        _kernel()(X.indptr, X.indices, np.ascontiguousarray(X.data), Y.indptr, Y.indices,
+        _numba().bsr_matmat_numeric(X.indptr, X.indices, np.ascontiguousarray(X.data), Y.indptr, Y.indices,
                   np.ascontiguousarray(Y.data), self.indptr, self.indices, data, self._marker, R, K, N)
         return sp.bsr_matrix((data, self.indices, self.indptr), shape=self.shape, copy=False)
 
@@ -121,3 +115,20 @@ def bsr_matmat(X: sp.bsr_matrix, Y: sp.bsr_matrix, kernels: str = "scipy",
             plan = BsrProduct(X, Y)
         return plan(X, Y), plan
     return (X @ Y).tobsr(blocksize=(X.blocksize[0], Y.blocksize[1])), None
+
+
+def block_gauss_seidel_forward(indptr: np.ndarray, indices: np.ndarray, data: np.ndarray, x: np.ndarray,
+                               b: np.ndarray, dinv: np.ndarray, kernels: str = "scipy") -> None:
+    """One forward block Gauss-Seidel sweep, ``x`` updated in place.
+
+    ``(indptr, indices, data)`` the BSR arrays of a square matrix with ``R x R`` blocks (``data`` (nnzb, R, R),
+    C-contiguous), ``dinv`` (nb, R, R) the inverses of its diagonal blocks. ``kernels="numba"``: the compiled
+    kernel (about twice as fast as pyamg's on 3x3 blocks, same sweep to round-off); ``"scipy"``: pyamg's.
+    """
+    if kernels == "numba":
+        _numba().block_gauss_seidel_forward(indptr, indices, data, x, b, dinv)
+        return
+    from pyamg import amg_core
+
+    nb, bs = dinv.shape[0], dinv.shape[1]
+    amg_core.block_gauss_seidel(indptr, indices, data.reshape(-1), x, b, dinv.reshape(-1), 0, nb, 1, bs)

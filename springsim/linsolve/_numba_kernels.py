@@ -1,15 +1,16 @@
 """numba kernels of :mod:`springsim.linsolve._kernels` (imported only when numba is used).
 
-Compiled once per block-size triple: the sizes are passed as literals, so the block loops have
-constant trip counts that the compiler unrolls. ``cache=True`` keeps the machine code on disk
-between processes.
+The block sizes of a cloth's hierarchy (3 and 6) get entry points that call the generic kernels with
+constant sizes, so the compiler unrolls the block loops; other sizes run the generic kernels.
+``cache=True`` keeps the machine code on disk between processes.
 """
 
 from __future__ import annotations
 
 import numba
+import numpy as np
 
-__all__ = ["bsr_matmat_numeric"]
+__all__ = ["block_gauss_seidel_forward", "bsr_matmat_numeric"]
 
 
 @numba.njit(cache=True)
@@ -57,3 +58,48 @@ def _matmat(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, R, K, N):
                         a = Xx[jj, r, m]
                         for c in range(N):
                             Cx[p, r, c] += a * Yx[kk, m, c]
+
+
+@numba.njit(cache=True)
+def _gauss_seidel(Ap, Aj, Ax, x, b, Dinv, R):
+    acc = np.empty(R)
+    for i in range(Ap.shape[0] - 1):
+        for r in range(R):
+            acc[r] = b[i * R + r]
+        for jj in range(Ap[i], Ap[i + 1]):
+            j = Aj[jj]
+            if j != i:
+                for r in range(R):
+                    s = 0.0
+                    for c in range(R):
+                        s += Ax[jj, r, c] * x[j * R + c]
+                    acc[r] -= s
+        for r in range(R):
+            s = 0.0
+            for c in range(R):
+                s += Dinv[i, r, c] * acc[c]
+            x[i * R + r] = s
+
+
+@numba.njit(cache=True)
+def _gauss_seidel_3(Ap, Aj, Ax, x, b, Dinv):
+    _gauss_seidel(Ap, Aj, Ax, x, b, Dinv, 3)
+
+
+@numba.njit(cache=True)
+def _gauss_seidel_6(Ap, Aj, Ax, x, b, Dinv):
+    _gauss_seidel(Ap, Aj, Ax, x, b, Dinv, 6)
+
+
+_GS_SPECIAL = {3: _gauss_seidel_3, 6: _gauss_seidel_6}
+
+
+def block_gauss_seidel_forward(Ap, Aj, Ax, x, b, Dinv):
+    """One forward block Gauss-Seidel sweep on the BSR arrays ``(Ap, Aj, Ax)`` (``Ax`` (nnzb, R, R)),
+    ``x`` updated in place: ``x_i = D_i^-1 (b_i - sum_{j != i} A_ij x_j)`` row by row (``Dinv`` (nb, R, R))."""
+    R = Ax.shape[1]
+    f = _GS_SPECIAL.get(R)
+    if f is None:
+        _gauss_seidel(Ap, Aj, Ax, x, b, Dinv, R)
+    else:
+        f(Ap, Aj, Ax, x, b, Dinv)

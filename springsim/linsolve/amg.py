@@ -11,17 +11,18 @@ implicit system's 3x3 block structure:
   together (``fmt="csr"`` aggregates scalar unknowns).
 * **smoothing**: block Gauss-Seidel on the 3x3 blocks, one forward sweep before and one backward
   sweep after, a symmetric V-cycle as CG needs. The backward sweep runs as a forward sweep on a
-  reversed copy of each level's matrix (:class:`BackwardBlockGaussSeidel`): pyamg's backward
-  kernel is about half as fast as its forward one.
+  reversed copy of each level's matrix (:class:`BlockGaussSeidel`): a backward kernel is about
+  half as fast as a forward one.
 * **prolongation**: Jacobi-smoothed aggregation (``omega = 4/3`` over the spectral radius of
   ``D^-1 A`` with the 3x3 block diagonal ``D``), symmetric strength ``theta = 0.1``; for
   symmetric systems the setup of :mod:`springsim.linsolve._sa` (a short Lanczos estimate of the
   spectral radius, warm-started from the previous matrix's Ritz vectors, and aggregates kept per
   matrix pattern), else pyamg's own setup.
 * **kernels**: with numba installed (the ``accel`` extra), the setup's sparse products keep their
-  patterns across rebuilds and compute only values, in compiled kernels (:mod:`springsim.linsolve._kernels`;
-  bitwise the same hierarchy as scipy's products, about twice as fast on large cloths);
-  ``kernels="scipy"`` keeps scipy's products.
+  patterns across rebuilds and compute only values, and the block Gauss-Seidel sweeps run, in
+  kernels compiled for the block sizes (:mod:`springsim.linsolve._kernels`; the same hierarchy and
+  sweeps as the pure path to round-off, each about twice as fast on large cloths);
+  ``kernels="scipy"`` keeps scipy's products and pyamg's sweeps.
 * **coarsest level**: at most ``max_coarse`` block rows, solved by a dense pseudo-inverse (the
   coarse operator of a flat cloth is exactly singular in its rotation modes).
 * **reuse**: a hierarchy is kept for repeated solves with the same matrix and tried on the next
@@ -49,7 +50,7 @@ from .preconditioners import Preconditioner
 
 _log = logger.getChild("linsolve")
 
-__all__ = ["AMGPreconditioner", "BackwardBlockGaussSeidel", "rigid_body_modes", "translation_modes"]
+__all__ = ["AMGPreconditioner", "BlockGaussSeidel", "rigid_body_modes", "translation_modes"]
 
 #: Seed of NumPy's global random state during a pyamg setup (restored afterwards).
 _PYAMG_SEED = 20_240_611
@@ -76,37 +77,48 @@ def translation_modes(F: int) -> np.ndarray:
     return np.tile(np.eye(3), (F, 1))
 
 
-class BackwardBlockGaussSeidel:
-    """One backward block Gauss-Seidel sweep on a BSR matrix, run as a forward sweep on
-    the matrix with its block rows and columns in reverse order.
+class BlockGaussSeidel:
+    """One block Gauss-Seidel sweep on a BSR matrix, forward or backward, as a pyamg smoother.
 
-    The same sweep as pyamg's ``block_gauss_seidel(..., sweep="backward")`` (equal up to
-    round-off), but pyamg's compiled kernel walks the rows backwards at about half the
-    speed of its forward walk; the reversed copy costs one pass over the matrix data per
-    hierarchy build (BENCHMARKS.md, section 5).
+    The backward sweep runs as a forward sweep on the matrix with its block rows and columns in
+    reverse order: the same sweep as pyamg's ``block_gauss_seidel(..., sweep="backward")`` (equal up
+    to round-off), but a compiled kernel walking the rows backwards runs at about half the speed of
+    its forward walk; the reversed copy costs one pass over the matrix data per hierarchy build
+    (BENCHMARKS.md, section 5). ``kernels`` selects pyamg's kernel (``"scipy"``) or the compiled
+    one of :mod:`springsim.linsolve._kernels` (``"numba"``).
 
-    Called as a pyamg smoother, ``smoother(A, x, b)``, updating ``x`` in place.
+    Called as a pyamg smoother, ``smoother(A, x, b)``, updating ``x`` in place; ``A`` must be the
+    matrix given at construction.
     """
 
-    def __init__(self, A):
+    def __init__(self, A, sweep: str = "forward", kernels: str = "scipy"):
         from pyamg.util.utils import get_block_diag
 
+        if sweep not in ("forward", "backward"):
+            raise ValueError(f"sweep must be 'forward' or 'backward', got {sweep!r}")
         bs = A.blocksize[0]
         nb = A.shape[0] // bs
-        nnzb = A.indices.size
-        self.bs, self.nb = bs, nb
-        self.indptr = np.ascontiguousarray(nnzb - A.indptr[::-1])
-        self.indices = np.ascontiguousarray((nb - 1 - A.indices)[::-1])
-        self.data = np.ascontiguousarray(A.data[::-1]).ravel()
-        self.dinv = np.ascontiguousarray(get_block_diag(A, blocksize=bs, inv_flag=True)[::-1]).ravel()
+        self.bs, self.nb, self.backward, self.kernels = bs, nb, sweep == "backward", kernels
+        dinv = get_block_diag(A, blocksize=bs, inv_flag=True)
+        if self.backward:
+            nnzb = A.indices.size
+            self.indptr = np.ascontiguousarray(nnzb - A.indptr[::-1])
+            self.indices = np.ascontiguousarray((nb - 1 - A.indices)[::-1])
+            self.data = np.ascontiguousarray(A.data[::-1])
+            self.dinv = np.ascontiguousarray(dinv[::-1])
+        else:
+            self.indptr, self.indices = A.indptr, A.indices
+            self.data, self.dinv = np.ascontiguousarray(A.data), np.ascontiguousarray(dinv)
 
     def __call__(self, A, x, b):
-        from pyamg import amg_core
+        from ._kernels import block_gauss_seidel_forward
 
+        if not self.backward:
+            block_gauss_seidel_forward(self.indptr, self.indices, self.data, x, b, self.dinv, self.kernels)
+            return
         xr = x.reshape(self.nb, self.bs)[::-1].ravel()  # a reversed copy
         br = b.reshape(self.nb, self.bs)[::-1].ravel()
-        amg_core.block_gauss_seidel(self.indptr, self.indices, self.data, xr, br, self.dinv,
-                                    0, self.nb, 1, self.bs)
+        block_gauss_seidel_forward(self.indptr, self.indices, self.data, xr, br, self.dinv, self.kernels)
         x[...] = xr.reshape(self.nb, self.bs)[::-1].ravel()
 
 
@@ -135,8 +147,8 @@ class AMGPreconditioner(Preconditioner):
         Relative change of the matrix (Frobenius, sampled) up to which reuse is tried during a cooldown
         (0 turns it off).
     kernels : {"auto", "numba", "scipy"}
-        The setup's sparse products: compiled numeric kernels with cached patterns (``"numba"``; ``"auto"``
-        when numba is installed) or scipy's (module docstring).
+        The setup's sparse products and the block smoothers: compiled kernels, the products with cached
+        patterns (``"numba"``; ``"auto"`` when numba is installed), or scipy's and pyamg's (module docstring).
     sa_options : dict, optional
         Extra keywords for :func:`pyamg.smoothed_aggregation_solver` (then pyamg's setup is used).
     """
@@ -278,10 +290,14 @@ class AMGPreconditioner(Preconditioner):
                          for k, v in self.sa_options.items()})
             ml = pyamg.smoothed_aggregation_solver(M, **opts)
         self.ml = ml
-        if self.smoother == "block_gauss_seidel" and "postsmoother" not in self.sa_options:
+        if self.smoother == "block_gauss_seidel":
             for level in ml.levels[:-1]:
-                if level.A.format == "bsr":
-                    level.postsmoother = BackwardBlockGaussSeidel(level.A)
+                if level.A.format != "bsr":
+                    continue
+                if "presmoother" not in self.sa_options:
+                    level.presmoother = BlockGaussSeidel(level.A, "forward", self.kernels)
+                if "postsmoother" not in self.sa_options:
+                    level.postsmoother = BlockGaussSeidel(level.A, "backward", self.kernels)
 
         vcycle = getattr(ml, "_MultilevelSolver__solve", None)
 
