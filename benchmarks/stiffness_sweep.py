@@ -11,12 +11,16 @@ smallest error. Where the reference's floor is not below the target, ``decidable
 comparison with the target means nothing there. Writes ``results/stiffness_sweep.csv``, ``.md`` and, with matplotlib,
 ``results/stiffness_sweep.png`` (CPU per frame against ke, one line per method, log-log; hollow markers
 where the method did not reach the target). The frame-cost runs of every ``(n, ke)`` are kept in
-``results/stiffness_sweep/ke<ke>/`` and their references cached as usual.
+``results/stiffness_sweep/ke<ke>/`` and their references cached as usual. ``--merge`` joins the rows of
+earlier sweeps (their ``stiffness_sweep.csv``, e.g. ``docs/stiffness_sweep.csv``, the data of the plot in
+BENCHMARKS.md) with this run's, which replace those of the same ``(n, ke, method)``, so that sizes run
+apart end up in one table and one plot.
 
 Usage::
 
     export OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1
     python -m benchmarks stiffness-sweep --sizes 32 --ke 1e3 1e4 1e5 1e6
+    python -m benchmarks stiffness-sweep --sizes 128 --ke 1e4 --merge docs/stiffness_sweep.csv
     python -m benchmarks stiffness-sweep --quick                 # n = 6, two stiffnesses (tests)
 """
 
@@ -41,6 +45,22 @@ DEFAULT_CANDIDATES = ("linearized_implicit:60:auto", "linearized_implicit:240:au
 def _rows(path: Path) -> list[dict]:
     with open(path, newline="") as fh:
         return list(csv.DictReader(fh))
+
+
+def load(path: Path, target: float) -> list[dict]:
+    """The rows of a ``stiffness_sweep.csv``, typed as :func:`best_per_method` gives them."""
+    return [{**r, "n": int(r["n"]), "ke": float(r["ke"]), "reached": r["reached"] == "True",
+             "decidable": r["decidable"] == "True" if "decidable" in r else float(r["floor"]) < target,
+             "err_rms": float(r["err_rms"]), "cpu_per_frame_s": float(r["cpu_per_frame_s"]),
+             "floor": float(r["floor"])} for r in _rows(path)]
+
+
+def merge(earlier: list[dict], rows: list[dict]) -> list[dict]:
+    """``earlier`` and ``rows`` in one list, a row of ``rows`` replacing one of ``earlier`` with its
+    ``(n, ke, method)``; sorted by n, method, ke."""
+    out = {(r["n"], r["ke"], r["method"]): r for r in earlier}
+    out.update({(r["n"], r["ke"], r["method"]): r for r in rows})
+    return sorted(out.values(), key=lambda r: (r["n"], r["method"], r["ke"]))
 
 
 def best_per_method(summary: dict, runs: list[dict], target: float) -> list[dict]:
@@ -102,6 +122,8 @@ def main(argv=None) -> int:
                    help="wall-time budget per size and stiffness [s] (default 14400: a sweep runs every candidate)")
     p.add_argument("--quick", action="store_true", help="n = 6, ke 1e3 1e4, two candidates, 20 frames (tests)")
     p.add_argument("--replot", action="store_true", help="only redraw the plot from the CSV of an earlier run")
+    p.add_argument("--merge", type=Path, nargs="*", default=[], metavar="CSV",
+                   help="join the rows of earlier sweeps' CSVs (this run's replace the same n, ke, method)")
     p.add_argument("--out", type=Path, default=RESULTS_DIR)
     a = p.parse_args(argv)
     if a.quick:
@@ -109,10 +131,12 @@ def main(argv=None) -> int:
         a.candidates = ["linearized_implicit:60:direct", "tr_bdf2:240:direct"]
     if not a.ke or any(not k > 0 for k in a.ke):
         p.error("--ke: every stiffness must be > 0")
+    for path in a.merge:
+        if not path.is_file():
+            p.error(f"--merge: no such file: {path}")
+    earlier = [r for path in a.merge for r in load(path, a.target)]
     if a.replot:
-        rows = [{**r, "n": int(r["n"]), "ke": float(r["ke"]), "reached": r["reached"] == "True",
-                 "decidable": r["decidable"] == "True" if "decidable" in r else float(r["floor"]) < a.target,
-                 "cpu_per_frame_s": float(r["cpu_per_frame_s"])} for r in _rows(a.out / "stiffness_sweep.csv")]
+        rows = merge(earlier, load(a.out / "stiffness_sweep.csv", a.target))
         return 0 if plot(rows, a.out / "stiffness_sweep.png", a.target) else 1
     rows = []
     for ke in a.ke:
@@ -125,7 +149,7 @@ def main(argv=None) -> int:
         runs = _rows(d / "frame_cost_candidates.csv")
         for s in _rows(d / "frame_cost.csv"):
             rows += best_per_method(s, [r for r in runs if r["n"] == s["n"]], a.target)
-    rows.sort(key=lambda r: (r["n"], r["method"], r["ke"]))
+    rows = merge(earlier, rows)
     write_csv(a.out / "stiffness_sweep.csv", rows, COLUMNS)
     md = markdown_table([{**r, "err_rms": fmt(r["err_rms"]), "cpu_per_frame_s": fmt(r["cpu_per_frame_s"])}
                          for r in rows], COLUMNS)

@@ -7,6 +7,7 @@ import argparse
 import csv
 import importlib
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -212,3 +213,22 @@ def test_stiffness_sweep_quick(tmp_path):
     (tmp_path / "stiffness_sweep.png").unlink()
     assert sw.main(["--replot", "--out", str(tmp_path)]) == 0  # the plot again, from the CSV alone
     assert (tmp_path / "stiffness_sweep.png").stat().st_size > 1000
+    # with the shipped sweep's rows merged in (docs/stiffness_sweep.csv, the data of the plot in BENCHMARKS.md)
+    shipped = Path(__file__).resolve().parents[2] / "docs" / "stiffness_sweep.csv"
+    assert sw.main(["--replot", "--out", str(tmp_path), "--merge", str(shipped)]) == 0
+
+
+def test_stiffness_sweep_merge_replaces_same_size_stiffness_and_method():
+    """The shipped sweep data loads with its types, and a new row replaces the one of its (n, ke, method)."""
+    from benchmarks import stiffness_sweep as sw
+
+    shipped = sw.load(Path(__file__).resolve().parents[2] / "docs" / "stiffness_sweep.csv", 0.01)
+    assert {r["n"] for r in shipped} >= {32, 64} and all(isinstance(r["reached"], bool) for r in shipped)
+    for r in shipped:
+        assert r["reached"] == (r["err_rms"] < 0.01) and r["decidable"] == (r["floor"] < 0.01)
+    new = {**shipped[0], "cpu_per_frame_s": 123.0}
+    extra = {**shipped[0], "n": 999}
+    merged = sw.merge(shipped, [new, extra])
+    assert len(merged) == len(shipped) + 1
+    assert [r["cpu_per_frame_s"] for r in merged if (r["n"], r["ke"], r["method"]) ==
+            (new["n"], new["ke"], new["method"])] == [123.0]
