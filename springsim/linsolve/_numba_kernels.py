@@ -10,7 +10,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["block_gauss_seidel_forward", "bsr_matmat_numeric"]
+__all__ = ["block_gauss_seidel_forward", "bsr_matmat_numeric", "bsr_matvec"]
 
 
 @numba.njit(cache=True)
@@ -103,3 +103,50 @@ def block_gauss_seidel_forward(Ap, Aj, Ax, x, b, Dinv):
         _gauss_seidel(Ap, Aj, Ax, x, b, Dinv, R)
     else:
         f(Ap, Aj, Ax, x, b, Dinv)
+
+
+@numba.njit(cache=True)
+def _matvec(Ap, Aj, Ax, x, y, alpha, beta, R, C):
+    for i in range(Ap.shape[0] - 1):
+        for r in range(R):
+            y[i * R + r] = 0.0 if beta == 0.0 else beta * y[i * R + r]
+        for jj in range(Ap[i], Ap[i + 1]):
+            j = Aj[jj]
+            for r in range(R):
+                s = 0.0
+                for c in range(C):
+                    s += Ax[jj, r, c] * x[j * C + c]
+                y[i * R + r] += alpha * s
+
+
+@numba.njit(cache=True)
+def _matvec_33(Ap, Aj, Ax, x, y, alpha, beta):
+    _matvec(Ap, Aj, Ax, x, y, alpha, beta, 3, 3)
+
+
+@numba.njit(cache=True)
+def _matvec_66(Ap, Aj, Ax, x, y, alpha, beta):
+    _matvec(Ap, Aj, Ax, x, y, alpha, beta, 6, 6)
+
+
+@numba.njit(cache=True)
+def _matvec_36(Ap, Aj, Ax, x, y, alpha, beta):
+    _matvec(Ap, Aj, Ax, x, y, alpha, beta, 3, 6)
+
+
+@numba.njit(cache=True)
+def _matvec_63(Ap, Aj, Ax, x, y, alpha, beta):
+    _matvec(Ap, Aj, Ax, x, y, alpha, beta, 6, 3)
+
+
+_MV_SPECIAL = {(3, 3): _matvec_33, (6, 6): _matvec_66, (3, 6): _matvec_36, (6, 3): _matvec_63}
+
+
+def bsr_matvec(Ap, Aj, Ax, x, y, alpha=1.0, beta=0.0):
+    """``y = beta y + alpha A x`` for the BSR arrays ``(Ap, Aj, Ax)`` (``Ax`` (nnzb, R, C)), in place;
+    ``beta = 0`` overwrites ``y`` (whatever it held)."""
+    f = _MV_SPECIAL.get((Ax.shape[1], Ax.shape[2]))
+    if f is None:
+        _matvec(Ap, Aj, Ax, x, y, float(alpha), float(beta), Ax.shape[1], Ax.shape[2])
+    else:
+        f(Ap, Aj, Ax, x, y, float(alpha), float(beta))

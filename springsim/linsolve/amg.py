@@ -19,10 +19,10 @@ implicit system's 3x3 block structure:
   spectral radius, warm-started from the previous matrix's Ritz vectors, and aggregates kept per
   matrix pattern), else pyamg's own setup.
 * **kernels**: with numba installed (the ``accel`` extra), the setup's sparse products keep their
-  patterns across rebuilds and compute only values, and the block Gauss-Seidel sweeps run, in
-  kernels compiled for the block sizes (:mod:`springsim.linsolve._kernels`; the same hierarchy and
-  sweeps as the pure path to round-off, each about twice as fast on large cloths);
-  ``kernels="scipy"`` keeps scipy's products and pyamg's sweeps.
+  patterns across rebuilds and compute only values, and the V-cycle (block Gauss-Seidel sweeps,
+  residuals, transfers) runs, in kernels compiled for the block sizes
+  (:mod:`springsim.linsolve._kernels`; the same hierarchy and cycle as the pure path to round-off);
+  ``kernels="scipy"`` keeps scipy's products and pyamg's cycle.
 * **coarsest level**: at most ``max_coarse`` block rows, solved by a dense pseudo-inverse (the
   coarse operator of a flat cloth is exactly singular in its rotation modes).
 * **reuse**: a hierarchy is kept for repeated solves with the same matrix and tried on the next
@@ -147,8 +147,8 @@ class AMGPreconditioner(Preconditioner):
         Relative change of the matrix (Frobenius, sampled) up to which reuse is tried during a cooldown
         (0 turns it off).
     kernels : {"auto", "numba", "scipy"}
-        The setup's sparse products and the block smoothers: compiled kernels, the products with cached
-        patterns (``"numba"``; ``"auto"`` when numba is installed), or scipy's and pyamg's (module docstring).
+        The setup's sparse products and the V-cycle: compiled kernels, the products with cached patterns
+        (``"numba"``; ``"auto"`` when numba is installed), or scipy's and pyamg's (module docstring).
     sa_options : dict, optional
         Extra keywords for :func:`pyamg.smoothed_aggregation_solver` (then pyamg's setup is used).
     """
@@ -191,6 +191,7 @@ class AMGPreconditioner(Preconditioner):
         self.stale_rebuilds = 0
         self.sa_options = dict(sa_options or {})
         self.ml = None
+        self.cycle = None
         self.key = None
         self.baseline: int | None = None
         self.builds = 0
@@ -290,7 +291,15 @@ class AMGPreconditioner(Preconditioner):
                          for k, v in self.sa_options.items()})
             ml = pyamg.smoothed_aggregation_solver(M, **opts)
         self.ml = ml
-        if self.smoother == "block_gauss_seidel":
+        own_cycle = (self.kernels == "numba" and self.smoother == "block_gauss_seidel" and len(ml.levels) > 1
+                     and not {"presmoother", "postsmoother"} & set(self.sa_options)
+                     and all(lv.A.format == "bsr" for lv in ml.levels))
+        self.cycle = "compiled" if own_cycle else "pyamg"
+        if own_cycle:
+            from ._kernels import CompiledVCycle
+
+            cycle = CompiledVCycle(ml.levels, ml.coarse_solver)
+        elif self.smoother == "block_gauss_seidel":
             for level in ml.levels[:-1]:
                 if level.A.format != "bsr":
                     continue
@@ -302,6 +311,8 @@ class AMGPreconditioner(Preconditioner):
         vcycle = getattr(ml, "_MultilevelSolver__solve", None)
 
         def apply(r):
+            if own_cycle:
+                return cycle(r)
             if vcycle is None or len(ml.levels) == 1:
                 return ml.solve(r, x0=np.zeros_like(r), maxiter=1, tol=1e-300, cycle="V")
             # one V-cycle from zero; MultilevelSolver.solve would add two residual matvecs
@@ -364,7 +375,7 @@ class AMGPreconditioner(Preconditioner):
         if self.ml is None:
             return {}
         return {"levels": [int(lv.A.shape[0]) for lv in self.ml.levels],
-                "operator_complexity": float(self.ml.operator_complexity()), "builds": self.builds,
+                "operator_complexity": float(self.ml.operator_complexity()), "cycle": self.cycle, "builds": self.builds,
                 "stale_rebuilds": self.stale_rebuilds, "nearby_reuses": self.nearby_reuses}
 
     def default_maxiter(self, n: int) -> int:

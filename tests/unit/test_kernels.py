@@ -76,14 +76,13 @@ def _cloth_system(n=16, seed=3):
     qd = rng.uniform(-1.0, 1.0, q.shape)
     h = 1.0 / 60.0
     A = SystemAssembler(model, make_force_terms(model)).assemble(q, qd, h * h, h, "spd")
-    free = A.positions
-    return A.bsr.copy(), rigid_body_modes(np.asarray(free))
+    return A.bsr.copy(), rigid_body_modes(np.asarray(A.positions)), A
 
 
 def test_hierarchy_matches_scipy_products_and_reuses_its_plans():
     """The same aggregates: every level's operators equal to round-off (the products sum in scipy's order;
     the smoothers see sorted rows), and a second setup with the plans reuses all of them."""
-    M, B = _cloth_system()
+    M, B, _ = _cloth_system()
     ref, aggs = smoothed_aggregation_levels(M, B, max_coarse=10, kernels="scipy")
     got, _ = smoothed_aggregation_levels(M, B, max_coarse=10, kernels="numba", aggregates=aggs)
     assert [lv.A.shape for lv in got] == [lv.A.shape for lv in ref] and len(got) >= 3
@@ -124,3 +123,47 @@ def test_simulation_with_compiled_setup_matches_the_pure_path():
     (q_ref, it_ref), (q, it) = runs["scipy"], runs["numba"]
     assert np.max(np.abs(q - q_ref)) < 1e-9
     assert np.max(np.abs(np.subtract(it, it_ref))) <= 1
+
+
+def test_compiled_vcycle_matches_pyamg_cycle_and_is_symmetric():
+    """The compiled V-cycle equals pyamg's cycle over the same levels (block Gauss-Seidel forward before,
+    backward after) to round-off, and is a symmetric operator (CG's requirement)."""
+    from pyamg.multilevel import MultilevelSolver
+
+    from springsim.linsolve._kernels import CompiledVCycle
+    from springsim.linsolve.amg import BlockGaussSeidel
+
+    M, B, _ = _cloth_system()
+    levels, _ = smoothed_aggregation_levels(M, B, max_coarse=10, kernels="numba")
+    ml = MultilevelSolver(levels, coarse_solver="pinv")
+    for lv in ml.levels[:-1]:
+        lv.presmoother = BlockGaussSeidel(lv.A, "forward", "scipy")
+        lv.postsmoother = BlockGaussSeidel(lv.A, "backward", "scipy")
+    cycle = CompiledVCycle(ml.levels, ml.coarse_solver)
+    rng = np.random.default_rng(7)
+    r, u, v = rng.standard_normal((3, M.shape[0]))
+    expected = np.zeros_like(r)
+    ml._MultilevelSolver__solve(0, expected, r, "V", 1)
+    got = cycle(r)
+    assert np.linalg.norm(got - expected) <= 1e-13 * np.linalg.norm(expected)
+    assert abs(u @ cycle(v) - v @ cycle(u)) <= 1e-12 * abs(u @ cycle(v))
+    r0 = r.copy()
+    cycle(r)
+    np.testing.assert_array_equal(r, r0)  # the right-hand side is untouched
+
+
+def test_amg_uses_the_compiled_cycle_only_with_numba_kernels():
+    """``kernels="numba"`` runs the compiled cycle, ``"scipy"`` pyamg's; both precondition CG alike."""
+    from springsim.linsolve import make_linear_solver
+
+    _, _, A = _cloth_system()
+    b = np.random.default_rng(2).standard_normal(A.shape[0])
+    iterations = {}
+    for kernels, cycle in (("numba", "compiled"), ("scipy", "pyamg")):
+        pre = AMGPreconditioner(kernels=kernels)
+        pre.build(A)
+        assert pre.describe()["cycle"] == cycle
+        res = make_linear_solver("amg-cg", rtol=1e-10, kernels=kernels).solve(A, b)
+        assert res.converged and res.residual <= 1e-10
+        iterations[kernels] = res.iterations
+    assert abs(iterations["numba"] - iterations["scipy"]) <= 1
