@@ -65,7 +65,9 @@ def test_warm_started_lanczos_matches_cold_estimate():
     M0, M1 = A0.bsr, A1.bsr
     D0, D1 = bsr_block_diagonal(M0), bsr_block_diagonal(M1)
     rho0, y = lanczos_rho(M0, D0, np.linalg.inv(D0), steps=12, return_vector=True)
-    assert y.shape == (M0.shape[0],) and rho0 == lanczos_rho(M0, D0, np.linalg.inv(D0), steps=12)
+    assert y.shape == (M0.shape[0],)
+    # the same run; the two LAPACK tridiagonal eigensolvers agree to round-off, not bitwise
+    assert rho0 == pytest.approx(lanczos_rho(M0, D0, np.linalg.inv(D0), steps=12), rel=1e-13)
     D1inv = np.linalg.inv(D1)
     exact = lanczos_rho(M1, D1, D1inv, steps=200)
     warm = lanczos_rho(M1, D1, D1inv, steps=4, start=y)
