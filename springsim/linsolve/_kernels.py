@@ -9,6 +9,11 @@ the blocks in a loop whose trip counts (the block sizes) are only known at run t
 numba kernel compiled for the block sizes (3x3 times 3x6 on the finest level of a cloth, 6x3 times
 3x6 for its Galerkin product, 6x6 on the coarse levels), so the compiler unrolls the block loops:
 about twice scipy's speed for the products of a 195,840-DOF cloth (BENCHMARKS.md, section 5).
+The Galerkin product ``R (A P)`` is symmetric: its plan computes the entries on and above the
+diagonal and mirrors them (``BsrProduct(..., symmetric=True)``), half the work. The rest of a
+level's setup runs compiled too: the diagonal blocks and their inverses in one pass
+(:func:`block_diagonal_inverse`), and the Jacobi smoothing of the tentative prolongator in place
+on the values of ``A T`` (:func:`smoothed_prolongator`).
 
 The values are summed in the order scipy sums them (block row of ``X``, then the block row of ``Y``
 it selects, then the inner block index), so both paths give bitwise the same product; the pattern
@@ -26,8 +31,8 @@ import importlib.util
 import numpy as np
 import scipy.sparse as sp
 
-__all__ = ["KERNELS", "BsrProduct", "CompiledVCycle", "block_gauss_seidel_forward", "bsr_matmat", "numba_available",
-           "resolve_kernels"]
+__all__ = ["KERNELS", "BsrProduct", "CompiledVCycle", "block_diagonal_inverse", "block_gauss_seidel_forward",
+           "bsr_matmat", "numba_available", "resolve_kernels", "smoothed_prolongator"]
 
 #: Accepted values of the ``kernels`` option.
 KERNELS = ("auto", "numba", "scipy")
@@ -69,9 +74,16 @@ class BsrProduct:
     Built from one pair ``(X, Y)``: the block pattern of ``C`` (all blocks that the patterns can
     produce, sorted, none dropped for being numerically zero). Called with matrices of the same
     patterns (:meth:`matches`), it computes only the values of ``C``.
+
+    With ``symmetric=True`` the caller asserts that ``C`` is symmetric (a Galerkin product
+    ``P^T (A P)`` with ``A`` symmetric): the entries on and above the diagonal are computed, as in
+    the general product, and each entry below it is a copy of its mirror image, which halves the
+    work and makes ``C`` exactly symmetric (equal to the general product to round-off).
+    ``C`` must then be square with square blocks and a symmetric block pattern (``ValueError``
+    otherwise).
     """
 
-    def __init__(self, X: sp.bsr_matrix, Y: sp.bsr_matrix):
+    def __init__(self, X: sp.bsr_matrix, Y: sp.bsr_matrix, symmetric: bool = False):
         R, K = X.blocksize
         K2, N = Y.blocksize
         if K != K2 or X.shape[1] != Y.shape[0]:
@@ -86,6 +98,20 @@ class BsrProduct:
         self._patterns = (X.indptr.copy(), X.indices.copy(), Y.indptr.copy(), Y.indices.copy())
         self._dims = (X.shape, X.blocksize, Y.shape, Y.blocksize)
         self._marker = np.zeros(Y.shape[1] // N, dtype=Cs.indices.dtype)
+        self.symmetric = bool(symmetric)
+        if self.symmetric:
+            nb = Cs.shape[0]
+            if R != N or Cs.shape[0] != Cs.shape[1]:
+                raise ValueError(f"a symmetric product must be square with square blocks, got {self.shape} {(R, N)}")
+            # position of every block in the transposed pattern: Ct.data[p] - 1 is where block (j, i) is stored
+            Cs.data = np.arange(1, Cs.nnz + 1, dtype=np.float64)
+            Ct = Cs.T.tocsr()
+            Ct.sort_indices()
+            if not (np.array_equal(Ct.indptr, Cs.indptr) and np.array_equal(Ct.indices, Cs.indices)):
+                raise ValueError("a symmetric product needs a symmetric block pattern")
+            rows = np.repeat(np.arange(nb, dtype=Cs.indices.dtype), np.diff(Cs.indptr))
+            self._lower = np.flatnonzero(Cs.indices < rows)
+            self._upper = Ct.data[self._lower].astype(np.int64) - 1
 
     def matches(self, X: sp.bsr_matrix, Y: sp.bsr_matrix) -> bool:
         """Whether ``X`` and ``Y`` have the block patterns this product was built for."""
@@ -98,24 +124,60 @@ class BsrProduct:
         R, N = self.blocksize
         K = X.blocksize[1]
         data = np.empty((self.indices.size, R, N))
-        _numba().bsr_matmat_numeric(X.indptr, X.indices, np.ascontiguousarray(X.data), Y.indptr, Y.indices,
-                  np.ascontiguousarray(Y.data), self.indptr, self.indices, data, self._marker, R, K, N)
+        operands = (X.indptr, X.indices, np.ascontiguousarray(X.data), Y.indptr, Y.indices,
+                    np.ascontiguousarray(Y.data), self.indptr, self.indices, data, self._marker)
+        if self.symmetric:
+            _numba().bsr_matmat_symmetric(*operands, self._lower, self._upper, R, K, N)
+        else:
+            _numba().bsr_matmat_numeric(*operands, R, K, N)
         return sp.bsr_matrix((data, self.indices, self.indptr), shape=self.shape, copy=False)
 
 
 def bsr_matmat(X: sp.bsr_matrix, Y: sp.bsr_matrix, kernels: str = "scipy",
-               plan: BsrProduct | None = None) -> tuple[sp.bsr_matrix, BsrProduct | None]:
+               plan: BsrProduct | None = None, symmetric: bool = False) -> tuple[sp.bsr_matrix, BsrProduct | None]:
     """``(X @ Y, plan)`` as BSR with blocks ``(X.blocksize[0], Y.blocksize[1])``.
 
     With ``kernels="numba"`` the product goes through ``plan`` when it matches the operands' patterns,
-    else through a new :class:`BsrProduct` (returned for the next call); with ``"scipy"`` through
-    scipy's product (``plan`` None).
+    else through a new :class:`BsrProduct` (returned for the next call; ``symmetric``, see there); with
+    ``"scipy"`` through scipy's product (``plan`` None).
     """
     if kernels == "numba":
-        if plan is None or not plan.matches(X, Y):
-            plan = BsrProduct(X, Y)
+        if plan is None or not plan.matches(X, Y) or plan.symmetric != symmetric:
+            plan = BsrProduct(X, Y, symmetric)
         return plan(X, Y), plan
     return (X @ Y).tobsr(blocksize=(X.blocksize[0], Y.blocksize[1])), None
+
+
+def block_diagonal_inverse(A: sp.bsr_matrix, kernels: str = "scipy") -> tuple[np.ndarray, np.ndarray]:
+    """``(D, Dinv)``: the diagonal blocks of the square BSR matrix ``A`` (zero where absent), (nb, bs, bs),
+    and their inverses. ``kernels="numba"``: one compiled pass (Gauss-Jordan with partial pivoting);
+    ``"scipy"``: :func:`~springsim.linsolve._sa.bsr_block_diagonal` and ``numpy.linalg.inv`` (LAPACK).
+    Both raise ``numpy.linalg.LinAlgError`` for a singular block and agree to round-off otherwise."""
+    if kernels == "numba":
+        return _numba().block_diagonal_inverse(A.indptr, A.indices, np.ascontiguousarray(A.data))
+    from ._sa import bsr_block_diagonal
+
+    D = bsr_block_diagonal(A)
+    return D, np.linalg.inv(D)
+
+
+def smoothed_prolongator(AT: sp.bsr_matrix, T: sp.bsr_matrix, Dinv: np.ndarray, scale: float,
+                         kernels: str = "scipy") -> sp.bsr_matrix:
+    """The Jacobi-smoothed prolongator ``P = T - scale D^-1 (A T)`` from ``AT = A T`` (BSR), the tentative
+    prolongator ``T`` and ``Dinv`` (nb, R, R), the inverted diagonal blocks of ``A``.
+
+    ``kernels="numba"``: one compiled pass that overwrites ``AT``'s values and returns ``P`` on its pattern
+    (which holds ``T``'s when ``A`` has all its diagonal blocks); ``"scipy"``: scaled blocks and scipy's
+    sparse difference. The two agree to round-off.
+    """
+    if kernels == "numba":
+        data = np.ascontiguousarray(AT.data)
+        _numba().smooth_prolongator(AT.indptr, AT.indices, data, np.ascontiguousarray(Dinv), scale,
+                                    T.indptr, T.indices, T.data)
+        return sp.bsr_matrix((data, AT.indices, AT.indptr), shape=AT.shape, copy=False)
+    AT.data = np.matmul(np.repeat(Dinv, np.diff(AT.indptr), axis=0), AT.data)
+    AT.data *= scale  # in place: one (nnzb, 3, 6) temporary fewer to page in
+    return (T - AT).tobsr(blocksize=T.blocksize)
 
 
 def block_gauss_seidel_forward(indptr: np.ndarray, indices: np.ndarray, data: np.ndarray, x: np.ndarray,
@@ -174,6 +236,11 @@ class CompiledVCycle:
         self.kernels = _numba()
         self.levels = [_Level(lv) for lv in levels[:-1]]
         self.coarse_A, self.coarse_solver = levels[-1].A, coarse_solver
+
+    def prepare(self) -> None:
+        """Run the coarse solver's lazy setup (pyamg's ``pinv`` factorises on its first call) now, without a
+        whole cycle."""
+        self.coarse_solver(self.coarse_A, np.zeros(self.coarse_A.shape[0]))
 
     def __call__(self, r: np.ndarray) -> np.ndarray:
         return self._cycle(0, np.ascontiguousarray(r, dtype=np.float64))

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["block_gauss_seidel_forward", "bsr_matmat_numeric", "bsr_matvec"]
+__all__ = ["block_diagonal_inverse", "block_gauss_seidel_forward", "bsr_matmat_numeric", "bsr_matmat_symmetric", "bsr_matvec", "smooth_prolongator"]
 
 
 @numba.njit(cache=True)
@@ -58,6 +58,195 @@ def _matmat(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, R, K, N):
                         a = Xx[jj, r, m]
                         for c in range(N):
                             Cx[p, r, c] += a * Yx[kk, m, c]
+
+
+@numba.njit(cache=True)
+def _matmat_upper(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, R, K, N):
+    # as _matmat, on the blocks (i, j >= i) of C only
+    for i in range(Xp.shape[0] - 1):
+        for p in range(Cp[i], Cp[i + 1]):
+            if Cj[p] >= i:
+                marker[Cj[p]] = p
+                for r in range(R):
+                    for c in range(N):
+                        Cx[p, r, c] = 0.0
+        for jj in range(Xp[i], Xp[i + 1]):
+            k = Xj[jj]
+            for kk in range(Yp[k], Yp[k + 1]):
+                j = Yj[kk]
+                if j < i:
+                    continue
+                p = marker[j]
+                for r in range(R):
+                    for m in range(K):
+                        a = Xx[jj, r, m]
+                        for c in range(N):
+                            Cx[p, r, c] += a * Yx[kk, m, c]
+        for p in range(Cp[i], Cp[i + 1]):  # the diagonal block: its lower triangle mirrors the upper one
+            if Cj[p] == i:
+                for r in range(R):
+                    for c in range(r):
+                        Cx[p, r, c] = Cx[p, c, r]
+
+
+@numba.njit(cache=True)
+def _mirror(Cx, lower, upper, R):
+    for t in range(lower.shape[0]):
+        p, q = lower[t], upper[t]
+        for r in range(R):
+            for c in range(R):
+                Cx[p, r, c] = Cx[q, c, r]
+
+
+@numba.njit(cache=True)
+def _matmat_sym_636(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, lower, upper):
+    _matmat_upper(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, 6, 3, 6)
+    _mirror(Cx, lower, upper, 6)
+
+
+@numba.njit(cache=True)
+def _matmat_sym_666(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, lower, upper):
+    _matmat_upper(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, 6, 6, 6)
+    _mirror(Cx, lower, upper, 6)
+
+
+_SYM_SPECIAL = {(6, 3, 6): _matmat_sym_636, (6, 6, 6): _matmat_sym_666}
+
+
+def bsr_matmat_symmetric(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, lower, upper, R, K, N):
+    """As :func:`bsr_matmat_numeric` for a product ``C`` known to be symmetric (square blocks, ``R == N``,
+    symmetric pattern): the entries on and above the diagonal are computed (as ``bsr_matmat_numeric``
+    computes them), each block ``lower[t]`` below the block diagonal is the transpose of block ``upper[t]``
+    and the diagonal blocks' lower triangles mirror their upper ones."""
+    f = _SYM_SPECIAL.get((R, K, N))
+    if f is None:
+        _matmat_upper(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, R, K, N)
+        _mirror(Cx, lower, upper, R)
+    else:
+        f(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, lower, upper)
+
+
+@numba.njit(cache=True)
+def _block_diagonal_inverse(Ap, Aj, Ax, D, Dinv, R):
+    # Gauss-Jordan elimination with partial pivoting on each diagonal block; returns the first block row
+    # whose block is singular (an exactly zero pivot), or -1
+    M = np.empty((R, R))
+    for i in range(Ap.shape[0] - 1):
+        for r in range(R):
+            for c in range(R):
+                D[i, r, c] = 0.0
+        for p in range(Ap[i], Ap[i + 1]):
+            if Aj[p] == i:
+                for r in range(R):
+                    for c in range(R):
+                        D[i, r, c] = Ax[p, r, c]
+        for r in range(R):
+            for c in range(R):
+                M[r, c] = D[i, r, c]
+                Dinv[i, r, c] = 1.0 if r == c else 0.0
+        for k in range(R):
+            piv, best = k, abs(M[k, k])
+            for r in range(k + 1, R):
+                if abs(M[r, k]) > best:
+                    piv, best = r, abs(M[r, k])
+            if best == 0.0:
+                return i
+            if piv != k:
+                for c in range(R):
+                    M[k, c], M[piv, c] = M[piv, c], M[k, c]
+                    Dinv[i, k, c], Dinv[i, piv, c] = Dinv[i, piv, c], Dinv[i, k, c]
+            d = 1.0 / M[k, k]
+            for c in range(R):
+                M[k, c] *= d
+                Dinv[i, k, c] *= d
+            for r in range(R):
+                if r != k:
+                    f = M[r, k]
+                    for c in range(R):
+                        M[r, c] -= f * M[k, c]
+                        Dinv[i, r, c] -= f * Dinv[i, k, c]
+    return -1
+
+
+@numba.njit(cache=True)
+def _block_diagonal_inverse_3(Ap, Aj, Ax, D, Dinv):
+    return _block_diagonal_inverse(Ap, Aj, Ax, D, Dinv, 3)
+
+
+@numba.njit(cache=True)
+def _block_diagonal_inverse_6(Ap, Aj, Ax, D, Dinv):
+    return _block_diagonal_inverse(Ap, Aj, Ax, D, Dinv, 6)
+
+
+_INV_SPECIAL = {3: _block_diagonal_inverse_3, 6: _block_diagonal_inverse_6}
+
+
+def block_diagonal_inverse(Ap, Aj, Ax):
+    """``(D, Dinv)``: the diagonal blocks of the square BSR arrays ``(Ap, Aj, Ax)`` (``Ax`` (nnzb, R, R);
+    zero where absent) and their inverses, each (nb, R, R), by Gauss-Jordan elimination with partial
+    pivoting. Raises ``numpy.linalg.LinAlgError`` for a singular block (as ``numpy.linalg.inv``)."""
+    R = Ax.shape[1]
+    nb = Ap.shape[0] - 1
+    D, Dinv = np.empty((nb, R, R)), np.empty((nb, R, R))
+    f = _INV_SPECIAL.get(R)
+    bad = _block_diagonal_inverse(Ap, Aj, Ax, D, Dinv, R) if f is None else f(Ap, Aj, Ax, D, Dinv)
+    if bad >= 0:
+        raise np.linalg.LinAlgError(f"Singular matrix: diagonal block {bad}")
+    return D, Dinv
+
+
+@numba.njit(cache=True)
+def _smooth_prolongator(Cp, Cj, Cx, Dinv, scale, Tp, Tj, Tx, R, N):
+    # Cx <- T - scale * Dinv C, block row by block row, on the pattern of C (which holds T's); returns the
+    # first block row with a block of T outside that pattern, or -1
+    tmp = np.empty(R)
+    for i in range(Cp.shape[0] - 1):
+        for p in range(Cp[i], Cp[i + 1]):
+            for c in range(N):
+                for r in range(R):
+                    s = 0.0
+                    for m in range(R):
+                        s += Dinv[i, r, m] * Cx[p, m, c]
+                    tmp[r] = s
+                for r in range(R):
+                    Cx[p, r, c] = -(tmp[r] * scale)
+        for t in range(Tp[i], Tp[i + 1]):
+            found = False
+            for p in range(Cp[i], Cp[i + 1]):
+                if Cj[p] == Tj[t]:
+                    for r in range(R):
+                        for c in range(N):
+                            Cx[p, r, c] += Tx[t, r, c]
+                    found = True
+                    break
+            if not found:
+                return i
+    return -1
+
+
+@numba.njit(cache=True)
+def _smooth_prolongator_36(Cp, Cj, Cx, Dinv, scale, Tp, Tj, Tx):
+    return _smooth_prolongator(Cp, Cj, Cx, Dinv, scale, Tp, Tj, Tx, 3, 6)
+
+
+@numba.njit(cache=True)
+def _smooth_prolongator_66(Cp, Cj, Cx, Dinv, scale, Tp, Tj, Tx):
+    return _smooth_prolongator(Cp, Cj, Cx, Dinv, scale, Tp, Tj, Tx, 6, 6)
+
+
+_SP_SPECIAL = {(3, 6): _smooth_prolongator_36, (6, 6): _smooth_prolongator_66}
+
+
+def smooth_prolongator(Cp, Cj, Cx, Dinv, scale, Tp, Tj, Tx):
+    """``Cx <- T - scale D^-1 C`` in place: ``(Cp, Cj, Cx)`` the BSR arrays of ``C = A T`` (``Cx`` (nnzb, R, N),
+    C-contiguous), ``Dinv`` (nb, R, R) the inverted diagonal blocks of ``A``, ``(Tp, Tj, Tx)`` those of ``T``,
+    whose blocks must lie in the pattern of ``C`` (``ValueError`` otherwise)."""
+    R, N = Cx.shape[1], Cx.shape[2]
+    f = _SP_SPECIAL.get((R, N))
+    args = (Cp, Cj, Cx, Dinv, float(scale), Tp, Tj, np.ascontiguousarray(Tx))
+    bad = _smooth_prolongator(*args, R, N) if f is None else f(*args)
+    if bad >= 0:
+        raise ValueError(f"block row {bad} of T lies outside the pattern of A T")
 
 
 @numba.njit(cache=True)

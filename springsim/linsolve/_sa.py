@@ -150,7 +150,7 @@ def smoothed_aggregation_levels(A: sp.bsr_matrix, B: np.ndarray, *, theta: float
     from pyamg.multilevel import MultilevelSolver
     from pyamg.strength import symmetric_strength_of_connection
 
-    from ._kernels import bsr_matmat
+    from ._kernels import block_diagonal_inverse, bsr_matmat, smoothed_prolongator
 
     levels = []
     used = []
@@ -169,8 +169,7 @@ def smoothed_aggregation_levels(A: sp.bsr_matrix, B: np.ndarray, *, theta: float
         if agg.shape[1] == 0 or agg.shape[1] >= nb:  # nothing (left) to coarsen
             break
         T, Bc = fit_candidates(agg, Bk)
-        D = bsr_block_diagonal(Ak)
-        Dinv = np.linalg.inv(D)
+        D, Dinv = block_diagonal_inverse(Ak, kernels)
         # the smoothers' block inverse too: pyamg's ``get_block_diag`` returns ``A.block_D_inv`` when
         # set, so each level inverts its diagonal once instead of three times
         Ak.block_D_inv = Dinv
@@ -183,9 +182,8 @@ def smoothed_aggregation_levels(A: sp.bsr_matrix, B: np.ndarray, *, theta: float
         old = products[li] if products is not None and li < len(products) else {}
         plans = {}
         AT, plans["AT"] = bsr_matmat(Ak, T, kernels, old.get("AT"))
-        AT.data = np.matmul(np.repeat(Dinv, np.diff(AT.indptr), axis=0), AT.data)
-        AT.data *= omega / rho  # in place: one (nnzb, 3, 6) temporary fewer to page in
-        P = (T - AT).tobsr(blocksize=T.blocksize)
+        P = smoothed_prolongator(AT, T, Dinv, omega / rho, kernels)
+        del AT
         R = P.T.tobsr(blocksize=(P.blocksize[1], P.blocksize[0]))
         level = MultilevelSolver.Level()
         level.A, level.B, level.P, level.R = Ak, Bk, P, R
@@ -194,7 +192,7 @@ def smoothed_aggregation_levels(A: sp.bsr_matrix, B: np.ndarray, *, theta: float
         levels.append(level)
         used.append(agg)
         AP, plans["AP"] = bsr_matmat(Ak, P, kernels, old.get("AP"))
-        Ak, plans["RAP"] = bsr_matmat(R, AP, kernels, old.get("RAP"))
+        Ak, plans["RAP"] = bsr_matmat(R, AP, kernels, old.get("RAP"), symmetric=True)
         del AP
         Ak.symmetry = "hermitian"
         Bk = Bc

@@ -320,7 +320,10 @@ class AMGPreconditioner(Preconditioner):
             vcycle(0, x, r, "V", 1)
             return x
 
-        apply(np.ones(A.shape[0]))  # pyamg finishes smoother and coarse-LU setup lazily on first use
+        if own_cycle:
+            cycle.prepare()  # the coarse solver's factorisation; the rest is set up
+        else:
+            apply(np.ones(A.shape[0]))  # pyamg finishes smoother and coarse-LU setup lazily on first use
         self._precond = apply
         self.baseline = None
         self.builds += 1

@@ -40,6 +40,51 @@ def test_product_matches_scipy(R, K, N):
     np.testing.assert_array_equal(plan(X2, Y).toarray(), (X2 @ Y).toarray())
 
 
+@pytest.mark.parametrize("K, N", [(3, 6), (6, 6), (2, 4)])
+def test_symmetric_galerkin_product(K, N):
+    """``P^T (A P)`` with ``symmetric=True`` (the specialised 6x3x6 and 6x6x6 kernels and the generic one):
+    the general product's entries on and above the diagonal bitwise, their mirror images below it, so
+    exactly symmetric and equal to scipy's product to round-off; a non-square product is refused."""
+    S = _random_bsr(30, 30, (K, K), 0.15, 3)
+    A = (S + S.T).tobsr(blocksize=(K, K))
+    P = _random_bsr(30, 12, (K, N), 0.2, 4)
+    R = P.T.tobsr(blocksize=(N, K))
+    AP = BsrProduct(A, P)(A, P)
+    general = BsrProduct(R, AP)(R, AP)
+    plan = BsrProduct(R, AP, symmetric=True)
+    C = plan(R, AP)
+    np.testing.assert_array_equal(C.indptr, general.indptr)
+    np.testing.assert_array_equal(C.indices, general.indices)
+    dense = C.toarray()
+    np.testing.assert_array_equal(np.triu(dense), np.triu(general.toarray()))
+    np.testing.assert_array_equal(dense, dense.T)
+    ref = (R @ (A @ P)).toarray()
+    np.testing.assert_allclose(dense, ref, rtol=0, atol=1e-13 * np.abs(ref).max())
+    C2, plan2 = bsr_matmat(R, AP, "numba", plan, symmetric=True)
+    assert plan2 is plan and np.array_equal(C2.toarray(), dense)
+    with pytest.raises(ValueError, match="square"):
+        BsrProduct(A, P, symmetric=True)
+
+
+@pytest.mark.parametrize("bs", [2, 3, 6])
+def test_block_diagonal_inverse_matches_lapack(bs):
+    """The compiled diagonal blocks and inverses (specialised 3 and 6, generic 2) equal the blocks
+    bitwise and numpy's inverses to round-off; a missing (zero) or singular block raises as numpy does."""
+    from springsim.linsolve._kernels import block_diagonal_inverse
+
+    S = _random_bsr(25, 25, (bs, bs), 0.2, bs)
+    A = (S + S.T + 10 * sp.eye(25 * bs)).tobsr(blocksize=(bs, bs))
+    D_ref, inv_ref = block_diagonal_inverse(A, "scipy")
+    D, inv = block_diagonal_inverse(A, "numba")
+    np.testing.assert_array_equal(D, D_ref)
+    np.testing.assert_allclose(inv, inv_ref, rtol=0, atol=1e-13 * np.abs(inv_ref).max())
+    hole = sp.bsr_matrix((S.data, S.indices, S.indptr), shape=S.shape)  # a random pattern: some rows lack a diagonal
+    assert (sp.csr_matrix((np.ones(S.indices.size), S.indices, S.indptr)).diagonal() == 0).any()
+    for kernels in ("scipy", "numba"):
+        with pytest.raises(np.linalg.LinAlgError):
+            block_diagonal_inverse(hole, kernels)
+
+
 def test_plan_is_rebuilt_when_a_pattern_changes():
     X = _random_bsr(40, 30, (3, 3), 0.1, 1)
     Y = _random_bsr(30, 20, (3, 6), 0.1, 2)
@@ -100,6 +145,29 @@ def test_hierarchy_matches_scipy_products_and_reuses_its_plans():
     for a, b in zip(again, smoothed_aggregation_levels(1.5 * M, B, max_coarse=10, kernels="scipy",
                                                        aggregates=aggs)[0]):
         assert abs(a.A - b.A).max() <= 1e-13 * abs(b.A).max()
+
+
+def test_smoothed_prolongator_matches_scipy():
+    """The compiled Jacobi smoothing of the tentative prolongator of a cloth equals the scaled blocks and
+    scipy's difference to round-off; a tentative block outside the pattern of ``A T`` is refused."""
+    from pyamg.aggregation.aggregate import standard_aggregation
+    from pyamg.aggregation.tentative import fit_candidates
+    from pyamg.strength import symmetric_strength_of_connection
+
+    from springsim.linsolve._kernels import block_diagonal_inverse, smoothed_prolongator
+
+    M, B, _ = _cloth_system()
+    T, _ = fit_candidates(standard_aggregation(symmetric_strength_of_connection(M, theta=0.1))[0], B)
+    _, Dinv = block_diagonal_inverse(M, "scipy")
+    ref = smoothed_prolongator(bsr_matmat(M, T, "scipy")[0], T, Dinv, 0.7, "scipy")
+    P = smoothed_prolongator(bsr_matmat(M, T, "numba")[0], T, Dinv, 0.7, "numba")
+    assert P.blocksize == ref.blocksize == (3, 6)
+    np.testing.assert_allclose(P.toarray(), ref.toarray(), rtol=0, atol=1e-14 * abs(ref).max())
+    ones = np.ones((2, 3, 6))
+    C = sp.bsr_matrix((ones, [1, 1], [0, 1, 2]), shape=(6, 12))  # T's blocks are in block column 0
+    T2 = sp.bsr_matrix((ones, [0, 0], [0, 1, 2]), shape=(6, 12))
+    with pytest.raises(ValueError, match="outside the pattern"):
+        smoothed_prolongator(C, T2, np.tile(np.eye(3), (2, 1, 1)), 0.7, "numba")
 
 
 def test_simulation_with_compiled_setup_matches_the_pure_path():
