@@ -10,22 +10,23 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["block_diagonal_inverse", "block_gauss_seidel_forward", "bsr_matmat_numeric", "bsr_matmat_symmetric", "bsr_matvec", "smooth_prolongator"]
+__all__ = ["block_diagonal_inverse", "block_gauss_seidel_forward", "bsr_matmat_numeric", "bsr_matmat_symmetric",
+           "bsr_matvec", "smooth_prolongator"]
 
 
 @numba.njit(cache=True)
 def _matmat_336(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker):
-    _matmat(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, 3, 3, 6)
+    _matmat(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, 3, 3, 6, False)
 
 
 @numba.njit(cache=True)
 def _matmat_636(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker):
-    _matmat(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, 6, 3, 6)
+    _matmat(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, 6, 3, 6, False)
 
 
 @numba.njit(cache=True)
 def _matmat_666(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker):
-    _matmat(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, 6, 6, 6)
+    _matmat(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, 6, 6, 6, False)
 
 
 _SPECIAL = {(3, 3, 6): _matmat_336, (6, 3, 6): _matmat_636, (6, 6, 6): _matmat_666}
@@ -36,36 +37,18 @@ def bsr_matmat_numeric(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, R, K, N):
     ``R x K`` blocks, ``Y`` ``K x N``; ``marker`` scratch of one entry per block column of ``C``)."""
     f = _SPECIAL.get((R, K, N))
     if f is None:
-        _matmat(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, R, K, N)
+        _matmat(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, R, K, N, False)
     else:
         f(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker)
 
 
 @numba.njit(cache=True)
-def _matmat(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, R, K, N):
+def _matmat(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, R, K, N, upper):
+    # upper: only the blocks (i, j >= i) of C, and each diagonal block's lower triangle mirrors its upper one
     for i in range(Xp.shape[0] - 1):
+        first = i if upper else 0
         for p in range(Cp[i], Cp[i + 1]):
-            marker[Cj[p]] = p
-            for r in range(R):
-                for c in range(N):
-                    Cx[p, r, c] = 0.0
-        for jj in range(Xp[i], Xp[i + 1]):
-            k = Xj[jj]
-            for kk in range(Yp[k], Yp[k + 1]):
-                p = marker[Yj[kk]]
-                for r in range(R):
-                    for m in range(K):
-                        a = Xx[jj, r, m]
-                        for c in range(N):
-                            Cx[p, r, c] += a * Yx[kk, m, c]
-
-
-@numba.njit(cache=True)
-def _matmat_upper(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, R, K, N):
-    # as _matmat, on the blocks (i, j >= i) of C only
-    for i in range(Xp.shape[0] - 1):
-        for p in range(Cp[i], Cp[i + 1]):
-            if Cj[p] >= i:
+            if Cj[p] >= first:
                 marker[Cj[p]] = p
                 for r in range(R):
                     for c in range(N):
@@ -74,7 +57,7 @@ def _matmat_upper(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, R, K, N):
             k = Xj[jj]
             for kk in range(Yp[k], Yp[k + 1]):
                 j = Yj[kk]
-                if j < i:
+                if j < first:
                     continue
                 p = marker[j]
                 for r in range(R):
@@ -82,11 +65,12 @@ def _matmat_upper(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, R, K, N):
                         a = Xx[jj, r, m]
                         for c in range(N):
                             Cx[p, r, c] += a * Yx[kk, m, c]
-        for p in range(Cp[i], Cp[i + 1]):  # the diagonal block: its lower triangle mirrors the upper one
-            if Cj[p] == i:
-                for r in range(R):
-                    for c in range(r):
-                        Cx[p, r, c] = Cx[p, c, r]
+        if upper:
+            for p in range(Cp[i], Cp[i + 1]):
+                if Cj[p] == i:
+                    for r in range(R):
+                        for c in range(r):
+                            Cx[p, r, c] = Cx[p, c, r]
 
 
 @numba.njit(cache=True)
@@ -100,13 +84,13 @@ def _mirror(Cx, lower, upper, R):
 
 @numba.njit(cache=True)
 def _matmat_sym_636(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, lower, upper):
-    _matmat_upper(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, 6, 3, 6)
+    _matmat(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, 6, 3, 6, True)
     _mirror(Cx, lower, upper, 6)
 
 
 @numba.njit(cache=True)
 def _matmat_sym_666(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, lower, upper):
-    _matmat_upper(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, 6, 6, 6)
+    _matmat(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, 6, 6, 6, True)
     _mirror(Cx, lower, upper, 6)
 
 
@@ -120,7 +104,7 @@ def bsr_matmat_symmetric(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, lower, uppe
     and the diagonal blocks' lower triangles mirror their upper ones."""
     f = _SYM_SPECIAL.get((R, K, N))
     if f is None:
-        _matmat_upper(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, R, K, N)
+        _matmat(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, R, K, N, True)
         _mirror(Cx, lower, upper, R)
     else:
         f(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, lower, upper)
