@@ -13,7 +13,10 @@ The Galerkin product ``R (A P)`` is symmetric: its plan computes the entries on 
 diagonal and mirrors them (``BsrProduct(..., symmetric=True)``), half the work. The rest of a
 level's setup runs compiled too: the diagonal blocks and their inverses in one pass
 (:func:`block_diagonal_inverse`), and the Jacobi smoothing of the tentative prolongator in place
-on the values of ``A T`` (:func:`smoothed_prolongator`).
+on the values of ``A T`` (:func:`smoothed_prolongator`). The solve phase has compiled kernels as
+well: the V-cycle (:class:`CompiledVCycle`; block Gauss-Seidel sweeps forward and backward in place,
+:func:`block_gauss_seidel_forward`, :func:`block_gauss_seidel_backward`) and the matrix-vector
+product that CG and the Lanczos estimate apply (:class:`BsrOperator`).
 
 The values are summed in the order scipy sums them (block row of ``X``, then the block row of ``Y``
 it selects, then the inner block index), so both paths give bitwise the same product; the pattern
@@ -31,8 +34,9 @@ import importlib.util
 import numpy as np
 import scipy.sparse as sp
 
-__all__ = ["KERNELS", "BsrProduct", "CompiledVCycle", "block_diagonal_inverse", "block_gauss_seidel_forward",
-           "bsr_matmat", "numba_available", "resolve_kernels", "smoothed_prolongator"]
+__all__ = ["KERNELS", "BsrOperator", "BsrProduct", "CompiledVCycle", "block_diagonal_inverse",
+           "block_gauss_seidel_backward", "block_gauss_seidel_forward", "bsr_matmat", "bsr_operator",
+           "numba_available", "resolve_kernels", "smoothed_prolongator"]
 
 #: Accepted values of the ``kernels`` option.
 KERNELS = ("auto", "numba", "scipy")
@@ -197,6 +201,52 @@ def block_gauss_seidel_forward(indptr: np.ndarray, indices: np.ndarray, data: np
     amg_core.block_gauss_seidel(indptr, indices, data.reshape(-1), x, b, dinv.reshape(-1), 0, nb, 1, bs)
 
 
+def block_gauss_seidel_backward(indptr: np.ndarray, indices: np.ndarray, data: np.ndarray, x: np.ndarray,
+                                b: np.ndarray, dinv: np.ndarray, kernels: str = "scipy") -> None:
+    """One backward block Gauss-Seidel sweep (block rows last to first), ``x`` updated in place; arguments as
+    :func:`block_gauss_seidel_forward`. ``kernels="numba"``: the compiled kernel, walking the rows and each
+    row's blocks backwards (the same sweep as pyamg's to round-off); ``"scipy"``: pyamg's."""
+    if kernels == "numba":
+        _numba().block_gauss_seidel_backward(indptr, indices, data, x, b, dinv)
+        return
+    from pyamg import amg_core
+
+    nb, bs = dinv.shape[0], dinv.shape[1]
+    amg_core.block_gauss_seidel(indptr, indices, data.reshape(-1), x, b, dinv.reshape(-1), nb - 1, -1, -1, bs)
+
+
+class BsrOperator:
+    """``x -> A x`` for a BSR matrix through the compiled block kernel (``A @ x`` for the Krylov methods).
+
+    About 1.6x scipy's ``bsr_matvec`` on the 3x3 blocks of a cloth (the block loops unrolled; BENCHMARKS.md,
+    section 5); equal to it to round-off (the three products of a block row are summed before they are added
+    to the result). Holds ``A``'s arrays: it describes ``A`` only as long as ``A``'s values do not change.
+    """
+
+    def __init__(self, A: sp.bsr_matrix):
+        self.matrix = A
+        self.shape, self.dtype = A.shape, A.dtype
+        self._arrays = (A.indptr, A.indices, np.ascontiguousarray(A.data))
+
+    def matvec(self, x: np.ndarray) -> np.ndarray:
+        """``A x`` (a new array); a 2-D ``x`` goes through scipy's product."""
+        x = np.asarray(x)
+        if x.ndim != 1 or x.dtype != np.float64:
+            return self.matrix @ x
+        y = np.empty(self.shape[0])
+        _numba().bsr_matvec(*self._arrays, np.ascontiguousarray(x), y, 1.0, 0.0)
+        return y
+
+    __matmul__ = dot = matvec
+
+
+def bsr_operator(A: sp.bsr_matrix, kernels: str = "scipy"):
+    """``A`` itself (``kernels="scipy"``) or a :class:`BsrOperator` for it (``"numba"``, float64 BSR)."""
+    if kernels == "numba" and sp.issparse(A) and A.format == "bsr" and A.dtype == np.float64:
+        return BsrOperator(A)
+    return A
+
+
 class _Level:
     """The arrays of one level of :class:`CompiledVCycle`."""
 
@@ -206,15 +256,10 @@ class _Level:
         A, P, R = level.A, level.P, level.R
         bs = A.blocksize[0]
         nb = A.shape[0] // bs
-        nnzb = A.indices.size
         dinv = get_block_diag(A, blocksize=bs, inv_flag=True)  # A.block_D_inv when the setup left it
         self.bs, self.nb, self.nc = bs, nb, P.shape[1]
         self.A = (A.indptr, A.indices, np.ascontiguousarray(A.data))
         self.dinv = np.ascontiguousarray(dinv)
-        # the backward sweep runs forward on the matrix with its block rows and columns reversed
-        self.B = (np.ascontiguousarray(nnzb - A.indptr[::-1]), np.ascontiguousarray((nb - 1 - A.indices)[::-1]),
-                  np.ascontiguousarray(self.A[2][::-1]))
-        self.binv = np.ascontiguousarray(self.dinv[::-1])
         self.P = (P.indptr, P.indices, np.ascontiguousarray(P.data))
         self.R = (R.indptr, R.indices, np.ascontiguousarray(R.data))
 
@@ -258,7 +303,5 @@ class CompiledVCycle:
         else:
             cx = self._cycle(lvl + 1, cb)
         k.bsr_matvec(*L.P, cx, x, 1.0, 1.0)
-        xr = np.ascontiguousarray(x.reshape(L.nb, L.bs)[::-1]).reshape(-1)
-        br = np.ascontiguousarray(b.reshape(L.nb, L.bs)[::-1]).reshape(-1)
-        k.block_gauss_seidel_forward(*L.B, xr, br, L.binv)
-        return np.ascontiguousarray(xr.reshape(L.nb, L.bs)[::-1]).reshape(-1)
+        k.block_gauss_seidel_backward(*L.A, x, b, L.dinv)
+        return x

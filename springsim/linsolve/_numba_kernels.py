@@ -10,8 +10,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["block_diagonal_inverse", "block_gauss_seidel_forward", "bsr_matmat_numeric", "bsr_matmat_symmetric",
-           "bsr_matvec", "smooth_prolongator"]
+__all__ = ["block_diagonal_inverse", "block_gauss_seidel_backward", "block_gauss_seidel_forward", "bsr_matmat_numeric",
+           "bsr_matmat_symmetric", "bsr_matvec", "smooth_prolongator"]
 
 
 @numba.njit(cache=True)
@@ -274,6 +274,55 @@ def block_gauss_seidel_forward(Ap, Aj, Ax, x, b, Dinv):
     f = _GS_SPECIAL.get(R)
     if f is None:
         _gauss_seidel(Ap, Aj, Ax, x, b, Dinv, R)
+    else:
+        f(Ap, Aj, Ax, x, b, Dinv)
+
+
+@numba.njit(cache=True)
+def _gauss_seidel_backward(Ap, Aj, Ax, x, b, Dinv, R):
+    # the rows from last to first, each row's blocks from last to first: the sweep of pyamg's backward kernel
+    acc = np.empty(R)
+    nb = Ap.shape[0] - 1
+    for t in range(nb):
+        i = nb - 1 - t
+        for r in range(R):
+            acc[r] = b[i * R + r]
+        for u in range(Ap[i + 1] - Ap[i]):
+            jj = Ap[i + 1] - 1 - u
+            j = Aj[jj]
+            if j != i:
+                for r in range(R):
+                    s = 0.0
+                    for c in range(R):
+                        s += Ax[jj, r, c] * x[j * R + c]
+                    acc[r] -= s
+        for r in range(R):
+            s = 0.0
+            for c in range(R):
+                s += Dinv[i, r, c] * acc[c]
+            x[i * R + r] = s
+
+
+@numba.njit(cache=True)
+def _gauss_seidel_backward_3(Ap, Aj, Ax, x, b, Dinv):
+    _gauss_seidel_backward(Ap, Aj, Ax, x, b, Dinv, 3)
+
+
+@numba.njit(cache=True)
+def _gauss_seidel_backward_6(Ap, Aj, Ax, x, b, Dinv):
+    _gauss_seidel_backward(Ap, Aj, Ax, x, b, Dinv, 6)
+
+
+_GSB_SPECIAL = {3: _gauss_seidel_backward_3, 6: _gauss_seidel_backward_6}
+
+
+def block_gauss_seidel_backward(Ap, Aj, Ax, x, b, Dinv):
+    """One backward block Gauss-Seidel sweep, as :func:`block_gauss_seidel_forward` with the block rows
+    (and the blocks within each row) taken from last to first."""
+    R = Ax.shape[1]
+    f = _GSB_SPECIAL.get(R)
+    if f is None:
+        _gauss_seidel_backward(Ap, Aj, Ax, x, b, Dinv, R)
     else:
         f(Ap, Aj, Ax, x, b, Dinv)
 

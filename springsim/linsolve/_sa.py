@@ -51,7 +51,7 @@ def _block_diagonal_operator(D: np.ndarray) -> sp.bsr_matrix:
 
 
 def lanczos_rho(A: sp.bsr_matrix, D: np.ndarray, Dinv: np.ndarray, steps: int = 12, seed: int = 0,
-                start: np.ndarray | None = None, return_vector: bool = False):
+                start: np.ndarray | None = None, return_vector: bool = False, kernels: str = "scipy"):
     """Largest eigenvalue of ``D^-1 A`` by ``steps`` Lanczos steps in the ``D`` inner product.
 
     ``A`` symmetric positive definite, ``D`` its block diagonal (SPD), ``Dinv`` the block
@@ -59,10 +59,14 @@ def lanczos_rho(A: sp.bsr_matrix, D: np.ndarray, Dinv: np.ndarray, steps: int = 
     ``nan`` when the run breaks down (``A`` or ``D`` not positive definite). The run starts
     from ``start`` when given (e.g. the top Ritz vector of a nearby matrix), else from a
     random vector (``seed``). With ``return_vector``: ``(rho, y)``, ``y`` the top Ritz vector
-    (None on breakdown).
+    (None on breakdown). ``kernels="numba"`` applies the three matrices with the compiled block
+    product (:class:`~springsim.linsolve._kernels.BsrOperator`).
     """
+    from ._kernels import bsr_operator
+
     n = A.shape[0]
-    Dop, Dinvop = _block_diagonal_operator(D), _block_diagonal_operator(Dinv)
+    Dop, Dinvop = (bsr_operator(_block_diagonal_operator(M), kernels) for M in (D, Dinv))
+    A = bsr_operator(A, kernels)
     q = np.random.default_rng(seed).standard_normal(n) if start is None else np.array(start, dtype=A.dtype)
     nq = float(q @ (Dop @ q))
     nan = (float("nan"), None) if return_vector else float("nan")
@@ -176,7 +180,7 @@ def smoothed_aggregation_levels(A: sp.bsr_matrix, B: np.ndarray, *, theta: float
         start = ritz[li] if ritz is not None and li < len(ritz) and ritz[li] is not None \
             and ritz[li].shape == (Ak.shape[0],) else None
         rho, y = lanczos_rho(Ak, D, Dinv, steps=lanczos_steps if start is None else warm_lanczos_steps,
-                             start=start, return_vector=True)
+                             start=start, return_vector=True, kernels=kernels)
         if not (np.isfinite(rho) and rho > 0.0):
             raise ArithmeticError("spectral radius estimate of D^-1 A broke down (matrix not positive definite)")
         old = products[li] if products is not None and li < len(products) else {}

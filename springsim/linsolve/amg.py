@@ -10,9 +10,10 @@ implicit system's 3x3 block structure:
 * **format**: BSR with 3x3 blocks, so that the three components of a particle are aggregated
   together (``fmt="csr"`` aggregates scalar unknowns).
 * **smoothing**: block Gauss-Seidel on the 3x3 blocks, one forward sweep before and one backward
-  sweep after, a symmetric V-cycle as CG needs. The backward sweep runs as a forward sweep on a
-  reversed copy of each level's matrix (:class:`BlockGaussSeidel`): a backward kernel is about
-  half as fast as a forward one.
+  sweep after, a symmetric V-cycle as CG needs. With pyamg's kernels the backward sweep runs as a
+  forward sweep on a reversed copy of each level's matrix (:class:`BlockGaussSeidel`): pyamg's
+  backward kernel is about half as fast as its forward one; the compiled kernels sweep backwards in
+  place at the forward speed.
 * **prolongation**: Jacobi-smoothed aggregation (``omega = 4/3`` over the spectral radius of
   ``D^-1 A`` with the 3x3 block diagonal ``D``), symmetric strength ``theta = 0.1``; for
   symmetric systems the setup of :mod:`springsim.linsolve._sa` (a short Lanczos estimate of the
@@ -20,9 +21,10 @@ implicit system's 3x3 block structure:
   matrix pattern), else pyamg's own setup.
 * **kernels**: with numba installed (the ``accel`` extra), the setup's sparse products keep their
   patterns across rebuilds and compute only values, and the V-cycle (block Gauss-Seidel sweeps,
-  residuals, transfers) runs, in kernels compiled for the block sizes
-  (:mod:`springsim.linsolve._kernels`; the same hierarchy and cycle as the pure path to round-off);
-  ``kernels="scipy"`` keeps scipy's products and pyamg's cycle.
+  residuals, transfers) and the matrix-vector products of the Krylov method and of the Lanczos
+  estimate run, in kernels compiled for the block sizes (:mod:`springsim.linsolve._kernels`; the
+  same hierarchy, cycle and products as the pure path to round-off); ``kernels="scipy"`` keeps
+  scipy's products and pyamg's cycle.
 * **coarsest level**: at most ``max_coarse`` block rows, solved by a dense pseudo-inverse (the
   coarse operator of a flat cloth is exactly singular in its rotation modes).
 * **reuse**: a hierarchy is kept for repeated solves with the same matrix and tried on the next
@@ -32,9 +34,10 @@ implicit system's 3x3 block structure:
   reached. After such a stale rebuild the next ``cooldown`` matrices get fresh hierarchies at once;
   the cooldown doubles after every stale rebuild (up to ``max_cooldown``) and resets when reuse
   succeeds, so a fast-moving phase wastes one attempt per doubling. A matrix *near* the hierarchy's
-  own (relative Frobenius change at most ``nearby``, estimated on every 8th block) is tried even during
-  a cooldown: the Newton iterations of one implicit stage change the matrix by ~1e-3 relative (and a
-  hierarchy serves them), consecutive steps of a falling cloth by 3-10e-2 (and it does not).
+  own (relative Frobenius change at most ``nearby``, estimated on an evenly strided sample of at most
+  about 32,768 blocks) is tried even during a cooldown: the Newton iterations of one implicit stage
+  change the matrix by ~1e-3 relative (and a hierarchy serves them), consecutive steps of a falling
+  cloth by 3-10e-2 (and it does not).
 
 The measurements behind these choices are in BENCHMARKS.md, section 5.
 """
@@ -80,12 +83,12 @@ def translation_modes(F: int) -> np.ndarray:
 class BlockGaussSeidel:
     """One block Gauss-Seidel sweep on a BSR matrix, forward or backward, as a pyamg smoother.
 
-    The backward sweep runs as a forward sweep on the matrix with its block rows and columns in
-    reverse order: the same sweep as pyamg's ``block_gauss_seidel(..., sweep="backward")`` (equal up
-    to round-off), but a compiled kernel walking the rows backwards runs at about half the speed of
-    its forward walk; the reversed copy costs one pass over the matrix data per hierarchy build
-    (BENCHMARKS.md, section 5). ``kernels`` selects pyamg's kernel (``"scipy"``) or the compiled
-    one of :mod:`springsim.linsolve._kernels` (``"numba"``).
+    ``kernels="numba"``: the compiled kernels of :mod:`springsim.linsolve._kernels`, walking the
+    block rows forwards or backwards on the matrix's own arrays. ``kernels="scipy"``: pyamg's
+    kernel; its backward sweep then runs as a forward sweep on a copy of the matrix with its block
+    rows and columns in reverse order (pyamg's backward walk runs at about half the speed of its
+    forward one; the copy costs one pass over the matrix data per hierarchy build). Every variant
+    is the sweep of pyamg's ``block_gauss_seidel(..., sweep=...)`` up to round-off.
 
     Called as a pyamg smoother, ``smoother(A, x, b)``, updating ``x`` in place; ``A`` must be the
     matrix given at construction.
@@ -100,7 +103,8 @@ class BlockGaussSeidel:
         nb = A.shape[0] // bs
         self.bs, self.nb, self.backward, self.kernels = bs, nb, sweep == "backward", kernels
         dinv = get_block_diag(A, blocksize=bs, inv_flag=True)
-        if self.backward:
+        self.reversed = self.backward and kernels != "numba"
+        if self.reversed:
             nnzb = A.indices.size
             self.indptr = np.ascontiguousarray(nnzb - A.indptr[::-1])
             self.indices = np.ascontiguousarray((nb - 1 - A.indices)[::-1])
@@ -111,10 +115,11 @@ class BlockGaussSeidel:
             self.data, self.dinv = np.ascontiguousarray(A.data), np.ascontiguousarray(dinv)
 
     def __call__(self, A, x, b):
-        from ._kernels import block_gauss_seidel_forward
+        from ._kernels import block_gauss_seidel_backward, block_gauss_seidel_forward
 
-        if not self.backward:
-            block_gauss_seidel_forward(self.indptr, self.indices, self.data, x, b, self.dinv, self.kernels)
+        if not self.reversed:
+            sweep = block_gauss_seidel_backward if self.backward else block_gauss_seidel_forward
+            sweep(self.indptr, self.indices, self.data, x, b, self.dinv, self.kernels)
             return
         xr = x.reshape(self.nb, self.bs)[::-1].ravel()  # a reversed copy
         br = b.reshape(self.nb, self.bs)[::-1].ravel()
@@ -237,17 +242,25 @@ class AMGPreconditioner(Preconditioner):
         self.version = A.version
         return self._precond, time.perf_counter() - t0, True
 
+    def operator(self, A):
+        """``A``'s BSR matrix, applied by the compiled block kernel with ``kernels="numba"``."""
+        from ._kernels import bsr_operator
+
+        return bsr_operator(A.bsr, self.kernels)
+
     def _near(self, A) -> bool:
         """Whether ``A`` differs from the matrix the hierarchy was built for by at most ``nearby`` (relative
-        Frobenius norm over every 8th block: one pass over an eighth of the data)."""
+        Frobenius norm over every ``s``-th block, ``s = max(8, nnzb // 32768)``: a sample of at most about
+        32,768 blocks, so that the check costs the same at any size)."""
         if self.nearby <= 0.0 or self.fmt != "bsr":
             return False
         old = getattr(self.ml.levels[0].A, "data", None)
         new = A.bsr.data
         if old is None or old.shape != new.shape:
             return False
-        o = old[::8]
-        d = new[::8] - o
+        stride = max(8, old.shape[0] // 32768)
+        o = old[::stride]
+        d = new[::stride] - o
         scale = float(np.vdot(o, o))
         return scale > 0.0 and float(np.vdot(d, d)) <= self.nearby ** 2 * scale
 

@@ -98,10 +98,11 @@ class LinearSolverIterative(LinearSolver):
         maxiter = int(self.maxiter) if self.maxiter is not None else P.default_maxiter(b.size)
         apply, setup_s, fresh = P.setup(A)
         t0 = time.perf_counter()
+        op = P.operator(A)
         if apply is None:  # e.g. a singular diagonal block: not an SPD matrix
             x, info = np.zeros_like(b), KrylovInfo(0, 1.0, "singular diagonal")
         else:
-            x, info = self.krylov(A.bsr, b, apply, x0, rtol=self.rtol, atol=self.atol,
+            x, info = self.krylov(op, b, apply, x0, rtol=self.rtol, atol=self.atol,
                                   maxiter=P.budget(maxiter, fresh))
         stale = False
         if not fresh and info.breakdown is not None:  # a reused operator too slow or broken: rebuild, continue
@@ -112,7 +113,7 @@ class LinearSolverIterative(LinearSolver):
             setup_s += s2
             t0 += s2
             restart = x if (np.all(np.isfinite(x)) and info.residual < 1.0) else x0
-            x, info2 = self.krylov(A.bsr, b, apply, restart, rtol=self.rtol, atol=self.atol, maxiter=maxiter)
+            x, info2 = self.krylov(op, b, apply, restart, rtol=self.rtol, atol=self.atol, maxiter=maxiter)
             fresh_iterations = info2.iterations  # the new hierarchy's own count: its baseline
             info2.iterations += info.iterations
             info = info2

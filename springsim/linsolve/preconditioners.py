@@ -9,7 +9,9 @@ solver drives every preconditioner through the same protocol:
 * :meth:`Preconditioner.budget` ``(maxiter, fresh)``: how many Krylov iterations a solve may
   take before a reused operator counts as stale;
 * :meth:`Preconditioner.record` ``(iterations, fresh, ok)``: the outcome, for the reuse policy;
-* :meth:`Preconditioner.invalidate` ``(stale)``: forget the operator (the next setup builds).
+* :meth:`Preconditioner.invalidate` ``(stale)``: forget the operator (the next setup builds);
+* :meth:`Preconditioner.operator` ``(A)``: the matrix as the Krylov method applies it (``A``'s
+  BSR matrix, or a compiled product for it).
 
 Preconditioners that are rebuilt for every new matrix (the Jacobi family) only implement
 :meth:`Preconditioner.build`. Adding one is a class here (or in its own module) plus one
@@ -71,6 +73,10 @@ class Preconditioner(ABC):
         apply = self.build(A)
         self._cache = (A, getattr(A, "version", None), apply)
         return apply, time.perf_counter() - t0, True
+
+    def operator(self, A):
+        """``A`` as the Krylov method applies it (``A @ x``): its BSR matrix."""
+        return A.bsr
 
     def budget(self, maxiter: int, fresh: bool) -> int:
         return maxiter

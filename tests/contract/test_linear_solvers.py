@@ -152,8 +152,8 @@ def test_auto_choice_by_size_and_symmetry():
 @pytest.mark.parametrize("bs", [2, 3, 6])
 def test_block_gauss_seidel_matches_pyamg(bs, sweep, kernels):
     """Both sweeps, with pyamg's kernel and the compiled one (every block size: the specialised 3 and 6
-    and the generic kernel), equal pyamg's block Gauss-Seidel sweep (the backward one runs forward on a
-    reversed copy)."""
+    and the generic kernel), equal pyamg's block Gauss-Seidel sweep (with pyamg's kernel the backward one
+    runs forward on a reversed copy; the compiled one sweeps backwards in place)."""
     import scipy.sparse as sp
     from pyamg.relaxation.relaxation import block_gauss_seidel
 
