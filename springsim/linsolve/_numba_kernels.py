@@ -14,19 +14,145 @@ __all__ = ["block_diagonal_inverse", "block_gauss_seidel_backward", "block_gauss
            "bsr_matmat_symmetric", "bsr_matvec", "smooth_prolongator"]
 
 
+@numba.njit(cache=True, inline="always")
+def _start_row(Cp, Cj, Cx, marker, i, first, R, N):
+    # zero the blocks (i, j >= first) of C's block row i and record their positions
+    for p in range(Cp[i], Cp[i + 1]):
+        if Cj[p] >= first:
+            marker[Cj[p]] = p
+            for r in range(R):
+                for c in range(N):
+                    Cx[p, r, c] = 0.0
+
+
+@numba.njit(cache=True, inline="always")
+def _mirror_diagonal(Cp, Cj, Cx, i, R):
+    # the lower triangle of the diagonal block of row i from its upper one
+    for p in range(Cp[i], Cp[i + 1]):
+        if Cj[p] == i:
+            for r in range(R):
+                for c in range(r):
+                    Cx[p, r, c] = Cx[p, c, r]
+
+
+@numba.njit(cache=True)
+def _matmat(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, R, K, N, upper):
+    # upper: only the blocks (i, j >= i) of C, and each diagonal block's lower triangle mirrors its upper one
+    for i in range(Xp.shape[0] - 1):
+        first = i if upper else 0
+        _start_row(Cp, Cj, Cx, marker, i, first, R, N)
+        for jj in range(Xp[i], Xp[i + 1]):
+            k = Xj[jj]
+            for kk in range(Yp[k], Yp[k + 1]):
+                j = Yj[kk]
+                if j < first:
+                    continue
+                p = marker[j]
+                for r in range(R):
+                    for m in range(K):
+                        a = Xx[jj, r, m]
+                        for c in range(N):
+                            Cx[p, r, c] += a * Yx[kk, m, c]
+        if upper:
+            _mirror_diagonal(Cp, Cj, Cx, i, R)
+
+
+# The kernels for the inner block sizes of a cloth's hierarchy (3 on the finest level, 6 below) hold the
+# block of X in scalars (a tuple per three or six entries) across the blocks of Y it meets, instead of
+# reloading it for every product: about 0.7x the time of the generic loop. Each entry is summed in the
+# generic loop's order (the inner index m ascending), so the results are bitwise the same.
+
+@numba.njit(cache=True, inline="always")
+def _rows3(Xx, jj, r0):
+    return (Xx[jj, r0, 0], Xx[jj, r0, 1], Xx[jj, r0, 2], Xx[jj, r0 + 1, 0], Xx[jj, r0 + 1, 1], Xx[jj, r0 + 1, 2],
+            Xx[jj, r0 + 2, 0], Xx[jj, r0 + 2, 1], Xx[jj, r0 + 2, 2])
+
+
+@numba.njit(cache=True, inline="always")
+def _axpy3(Cx, p, r0, a, Yx, kk, N):
+    # rows r0 .. r0 + 2 of block p of C += (those rows of X's block, a) @ (block kk of Y); inner size 3
+    a00, a01, a02, a10, a11, a12, a20, a21, a22 = a
+    for c in range(N):
+        y0, y1, y2 = Yx[kk, 0, c], Yx[kk, 1, c], Yx[kk, 2, c]
+        Cx[p, r0, c] = ((Cx[p, r0, c] + a00 * y0) + a01 * y1) + a02 * y2
+        Cx[p, r0 + 1, c] = ((Cx[p, r0 + 1, c] + a10 * y0) + a11 * y1) + a12 * y2
+        Cx[p, r0 + 2, c] = ((Cx[p, r0 + 2, c] + a20 * y0) + a21 * y1) + a22 * y2
+
+
+@numba.njit(cache=True)
+def _matmat_k3(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, R, N, upper):
+    # _matmat for K = 3 and R = 3 or 6
+    for i in range(Xp.shape[0] - 1):
+        first = i if upper else 0
+        _start_row(Cp, Cj, Cx, marker, i, first, R, N)
+        for jj in range(Xp[i], Xp[i + 1]):
+            k = Xj[jj]
+            top = _rows3(Xx, jj, 0)
+            bottom = _rows3(Xx, jj, 3) if R == 6 else top
+            for kk in range(Yp[k], Yp[k + 1]):
+                j = Yj[kk]
+                if j < first:
+                    continue
+                p = marker[j]
+                _axpy3(Cx, p, 0, top, Yx, kk, N)
+                if R == 6:
+                    _axpy3(Cx, p, 3, bottom, Yx, kk, N)
+        if upper:
+            _mirror_diagonal(Cp, Cj, Cx, i, R)
+
+
+@numba.njit(cache=True, inline="always")
+def _row6(Xx, jj, r):
+    return (Xx[jj, r, 0], Xx[jj, r, 1], Xx[jj, r, 2], Xx[jj, r, 3], Xx[jj, r, 4], Xx[jj, r, 5])
+
+
+@numba.njit(cache=True, inline="always")
+def _axpy6(Cx, p, r, a, Yx, kk, N):
+    # row r of block p of C += (row r of X's block, a) @ (block kk of Y); inner size 6
+    a0, a1, a2, a3, a4, a5 = a
+    for c in range(N):
+        Cx[p, r, c] = (((((Cx[p, r, c] + a0 * Yx[kk, 0, c]) + a1 * Yx[kk, 1, c]) + a2 * Yx[kk, 2, c])
+                        + a3 * Yx[kk, 3, c]) + a4 * Yx[kk, 4, c]) + a5 * Yx[kk, 5, c]
+
+
+@numba.njit(cache=True)
+def _matmat_k6(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, N, upper):
+    # _matmat for R = K = 6
+    for i in range(Xp.shape[0] - 1):
+        first = i if upper else 0
+        _start_row(Cp, Cj, Cx, marker, i, first, 6, N)
+        for jj in range(Xp[i], Xp[i + 1]):
+            k = Xj[jj]
+            a0, a1, a2 = _row6(Xx, jj, 0), _row6(Xx, jj, 1), _row6(Xx, jj, 2)
+            a3, a4, a5 = _row6(Xx, jj, 3), _row6(Xx, jj, 4), _row6(Xx, jj, 5)
+            for kk in range(Yp[k], Yp[k + 1]):
+                j = Yj[kk]
+                if j < first:
+                    continue
+                p = marker[j]
+                _axpy6(Cx, p, 0, a0, Yx, kk, N)
+                _axpy6(Cx, p, 1, a1, Yx, kk, N)
+                _axpy6(Cx, p, 2, a2, Yx, kk, N)
+                _axpy6(Cx, p, 3, a3, Yx, kk, N)
+                _axpy6(Cx, p, 4, a4, Yx, kk, N)
+                _axpy6(Cx, p, 5, a5, Yx, kk, N)
+        if upper:
+            _mirror_diagonal(Cp, Cj, Cx, i, 6)
+
+
 @numba.njit(cache=True)
 def _matmat_336(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker):
-    _matmat(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, 3, 3, 6, False)
+    _matmat_k3(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, 3, 6, False)
 
 
 @numba.njit(cache=True)
 def _matmat_636(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker):
-    _matmat(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, 6, 3, 6, False)
+    _matmat_k3(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, 6, 6, False)
 
 
 @numba.njit(cache=True)
 def _matmat_666(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker):
-    _matmat(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, 6, 6, 6, False)
+    _matmat_k6(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, 6, False)
 
 
 _SPECIAL = {(3, 3, 6): _matmat_336, (6, 3, 6): _matmat_636, (6, 6, 6): _matmat_666}
@@ -43,37 +169,6 @@ def bsr_matmat_numeric(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, R, K, N):
 
 
 @numba.njit(cache=True)
-def _matmat(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, R, K, N, upper):
-    # upper: only the blocks (i, j >= i) of C, and each diagonal block's lower triangle mirrors its upper one
-    for i in range(Xp.shape[0] - 1):
-        first = i if upper else 0
-        for p in range(Cp[i], Cp[i + 1]):
-            if Cj[p] >= first:
-                marker[Cj[p]] = p
-                for r in range(R):
-                    for c in range(N):
-                        Cx[p, r, c] = 0.0
-        for jj in range(Xp[i], Xp[i + 1]):
-            k = Xj[jj]
-            for kk in range(Yp[k], Yp[k + 1]):
-                j = Yj[kk]
-                if j < first:
-                    continue
-                p = marker[j]
-                for r in range(R):
-                    for m in range(K):
-                        a = Xx[jj, r, m]
-                        for c in range(N):
-                            Cx[p, r, c] += a * Yx[kk, m, c]
-        if upper:
-            for p in range(Cp[i], Cp[i + 1]):
-                if Cj[p] == i:
-                    for r in range(R):
-                        for c in range(r):
-                            Cx[p, r, c] = Cx[p, c, r]
-
-
-@numba.njit(cache=True)
 def _mirror(Cx, lower, upper, R):
     for t in range(lower.shape[0]):
         p, q = lower[t], upper[t]
@@ -84,13 +179,13 @@ def _mirror(Cx, lower, upper, R):
 
 @numba.njit(cache=True)
 def _matmat_sym_636(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, lower, upper):
-    _matmat(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, 6, 3, 6, True)
+    _matmat_k3(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, 6, 6, True)
     _mirror(Cx, lower, upper, 6)
 
 
 @numba.njit(cache=True)
 def _matmat_sym_666(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, lower, upper):
-    _matmat(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, 6, 6, 6, True)
+    _matmat_k6(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, 6, True)
     _mirror(Cx, lower, upper, 6)
 
 
