@@ -1,7 +1,9 @@
 """numba kernels of :mod:`springsim.linsolve._kernels` (imported only when numba is used).
 
 The block sizes of a cloth's hierarchy (3 and 6) get entry points that call the generic kernels with
-constant sizes, so the compiler unrolls the block loops; other sizes run the generic kernels.
+constant sizes, so the compiler unrolls the block loops; the block products for inner sizes 3 and 6
+also keep the left block in scalars (``_matmat_k3``, ``_matmat_k6``). Other sizes run the generic
+kernels.
 ``cache=True`` keeps the machine code on disk between processes.
 """
 
