@@ -16,7 +16,8 @@ level's setup runs compiled too: the diagonal blocks and their inverses in one p
 on the values of ``A T`` (:func:`smoothed_prolongator`). The solve phase has compiled kernels as
 well: the V-cycle (:class:`CompiledVCycle`; block Gauss-Seidel sweeps forward and backward in place,
 :func:`block_gauss_seidel_forward`, :func:`block_gauss_seidel_backward`) and the matrix-vector
-product that CG and the Lanczos estimate apply (:class:`BsrOperator`).
+product that the Krylov method (with the AMG preconditioner) and the Lanczos estimate apply
+(:class:`BsrOperator`).
 
 The values are summed in the order scipy sums them (block row of ``X``, then the block row of ``Y``
 it selects, then the inner block index), so both paths give bitwise the same product; the pattern
@@ -218,9 +219,10 @@ def block_gauss_seidel_backward(indptr: np.ndarray, indices: np.ndarray, data: n
 class BsrOperator:
     """``x -> A x`` for a BSR matrix through the compiled block kernel (``A @ x`` for the Krylov methods).
 
-    About 1.6x scipy's ``bsr_matvec`` on the 3x3 blocks of a cloth (the block loops unrolled; BENCHMARKS.md,
-    section 5); equal to it to round-off (the three products of a block row are summed before they are added
-    to the result). Holds ``A``'s arrays: it describes ``A`` only as long as ``A``'s values do not change.
+    About 0.6x the time of scipy's ``bsr_matvec`` on the 3x3 blocks of a cloth (the block loops unrolled;
+    BENCHMARKS.md, section 5); equal to it to round-off (the products within each block are summed before
+    they are added to the result). Holds ``A``'s arrays, so it follows in-place updates of ``A``'s values.
+    A vector of another length, dtype or dimension goes through scipy's product (which checks it).
     """
 
     def __init__(self, A: sp.bsr_matrix):
@@ -231,7 +233,7 @@ class BsrOperator:
     def matvec(self, x: np.ndarray) -> np.ndarray:
         """``A x`` (a new array); a 2-D ``x`` goes through scipy's product."""
         x = np.asarray(x)
-        if x.ndim != 1 or x.dtype != np.float64:
+        if x.ndim != 1 or x.dtype != np.float64 or x.shape[0] != self.shape[1]:
             return self.matrix @ x
         y = np.empty(self.shape[0])
         _numba().bsr_matvec(*self._arrays, np.ascontiguousarray(x), y, 1.0, 0.0)

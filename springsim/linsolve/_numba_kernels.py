@@ -83,7 +83,8 @@ def _axpy3(Cx, p, r0, a, Yx, kk, N):
 
 @numba.njit(cache=True)
 def _matmat_k3(Xp, Xj, Xx, Yp, Yj, Yx, Cp, Cj, Cx, marker, R, N, upper):
-    # _matmat for K = 3 and R = 3 or 6
+    # _matmat for K = 3 and R = 3 or 6 (only those: other R would get rows 0-2 only; the entry points below
+    # are the only callers)
     for i in range(Xp.shape[0] - 1):
         first = i if upper else 0
         _start_row(Cp, Cj, Cx, marker, i, first, R, N)
@@ -377,7 +378,9 @@ def block_gauss_seidel_forward(Ap, Aj, Ax, x, b, Dinv):
 
 @numba.njit(cache=True)
 def _gauss_seidel_backward(Ap, Aj, Ax, x, b, Dinv, R):
-    # the rows from last to first, each row's blocks from last to first: the sweep of pyamg's backward kernel
+    # the rows from last to first, each row's blocks from last to first: bitwise the forward sweep on the matrix
+    # with its block rows and columns reversed, and pyamg's backward sweep (which walks a row's blocks forwards)
+    # to round-off
     acc = np.empty(R)
     nb = Ap.shape[0] - 1
     for t in range(nb):

@@ -21,10 +21,10 @@ implicit system's 3x3 block structure:
   matrix pattern), else pyamg's own setup.
 * **kernels**: with numba installed (the ``accel`` extra), the setup's sparse products keep their
   patterns across rebuilds and compute only values, and the V-cycle (block Gauss-Seidel sweeps,
-  residuals, transfers) and the matrix-vector products of the Krylov method and of the Lanczos
-  estimate run, in kernels compiled for the block sizes (:mod:`springsim.linsolve._kernels`; the
-  same hierarchy, cycle and products as the pure path to round-off); ``kernels="scipy"`` keeps
-  scipy's products and pyamg's cycle.
+  residuals, transfers) and the matrix-vector products of the Krylov method (``amg-cg``,
+  ``amg-gmres``) and of the Lanczos estimate run, in kernels compiled for the block sizes
+  (:mod:`springsim.linsolve._kernels`; the same hierarchy, cycle and products as the pure path to
+  round-off); ``kernels="scipy"`` keeps scipy's products and pyamg's cycle.
 * **coarsest level**: at most ``max_coarse`` block rows, solved by a dense pseudo-inverse (the
   coarse operator of a flat cloth is exactly singular in its rotation modes).
 * **reuse**: a hierarchy is kept for repeated solves with the same matrix and tried on the next
@@ -250,15 +250,16 @@ class AMGPreconditioner(Preconditioner):
 
     def _near(self, A) -> bool:
         """Whether ``A`` differs from the matrix the hierarchy was built for by at most ``nearby`` (relative
-        Frobenius norm over every ``s``-th block, ``s = max(8, nnzb // 32768)``: a sample of at most about
-        32,768 blocks, so that the check costs the same at any size)."""
+        Frobenius norm over every ``s``-th block, ``s`` the smallest odd number >= ``max(8, nnzb // 32768)``:
+        a sample of at most about 32,768 blocks, so that the check costs the same at any size; odd, so that the
+        sample does not keep to one slot of equally long block rows)."""
         if self.nearby <= 0.0 or self.fmt != "bsr":
             return False
         old = getattr(self.ml.levels[0].A, "data", None)
         new = A.bsr.data
         if old is None or old.shape != new.shape:
             return False
-        stride = max(8, old.shape[0] // 32768)
+        stride = max(8, old.shape[0] // 32768) | 1
         o = old[::stride]
         d = new[::stride] - o
         scale = float(np.vdot(o, o))

@@ -237,12 +237,14 @@ def test_amg_uses_the_compiled_cycle_only_with_numba_kernels():
     assert abs(iterations["numba"] - iterations["scipy"]) <= 1
 
 
-@pytest.mark.parametrize("kernels", ["numba", "scipy"])
 @pytest.mark.parametrize("bs", [2, 3, 6])
-def test_backward_sweep_matches_pyamg(bs, kernels):
-    """The backward block Gauss-Seidel sweep in place (the compiled kernel for the specialised block sizes
-    3 and 6 and the generic one, and pyamg's) equals pyamg's backward sweep to round-off."""
+def test_backward_sweep_matches_pyamg_and_the_reversed_forward_sweep(bs):
+    """The compiled backward block Gauss-Seidel sweep in place (the specialised block sizes 3 and 6 and the
+    generic kernel) equals pyamg's backward sweep to round-off, and bitwise the forward sweep on the matrix
+    with its block rows and columns reversed (what the pure path runs)."""
     from pyamg.relaxation.relaxation import block_gauss_seidel
+
+    from springsim.linsolve.amg import BlockGaussSeidel
 
     S = _random_bsr(40, 40, (bs, bs), 0.15, 5)
     A = (S + S.T + 40 * bs * sp.eye(40 * bs)).tobsr(blocksize=(bs, bs))  # block diagonally dominant
@@ -252,14 +254,25 @@ def test_backward_sweep_matches_pyamg(bs, kernels):
     expected = x0.copy()
     block_gauss_seidel(A, expected, b, sweep="backward", blocksize=bs)
     x = x0.copy()
-    _kernels.block_gauss_seidel_backward(A.indptr, A.indices, np.ascontiguousarray(A.data), x, b, Dinv, kernels)
+    _kernels.block_gauss_seidel_backward(A.indptr, A.indices, np.ascontiguousarray(A.data), x, b, Dinv, "numba")
     np.testing.assert_allclose(x, expected, rtol=1e-13, atol=1e-13)
+    reversed_copy = BlockGaussSeidel(A, "backward", "numba")
+    reversed_copy.reversed = True  # the pure path's layout, swept by the compiled forward kernel
+    nnzb, nb = A.indices.size, A.shape[0] // bs
+    reversed_copy.indptr = np.ascontiguousarray(nnzb - A.indptr[::-1])
+    reversed_copy.indices = np.ascontiguousarray((nb - 1 - A.indices)[::-1])
+    reversed_copy.data = np.ascontiguousarray(A.data[::-1])
+    reversed_copy.dinv = np.ascontiguousarray(Dinv[::-1])
+    y = x0.copy()
+    reversed_copy(A, y, b)
+    np.testing.assert_array_equal(x, y)
 
 
 @pytest.mark.parametrize("R, C", [(3, 3), (6, 6), (3, 6), (2, 4)])
 def test_bsr_operator_matches_scipy(R, C):
     """The compiled matrix-vector product equals scipy's to round-off (every specialised block shape and the
-    generic kernel); 2-D operands and other dtypes go through scipy; ``kernels="scipy"`` keeps the matrix."""
+    generic kernel); 2-D operands, other dtypes and wrong lengths go through scipy (which checks them);
+    ``kernels="scipy"`` and non-BSR matrices keep the matrix."""
     A = _random_bsr(30, 25, (R, C), 0.2, 6)
     op = _kernels.bsr_operator(A, "numba")
     assert isinstance(op, _kernels.BsrOperator) and op.shape == A.shape
@@ -270,14 +283,19 @@ def test_bsr_operator_matches_scipy(R, C):
     X = np.random.default_rng(2).standard_normal((A.shape[1], 2))
     np.testing.assert_array_equal(op @ X, A @ X)
     np.testing.assert_array_equal(op @ x.astype(np.float32), A @ x.astype(np.float32))
+    with pytest.raises(ValueError):
+        op @ np.ones(A.shape[1] + 1)
     assert _kernels.bsr_operator(A, "scipy") is A
-    assert _kernels.bsr_operator(A.tocsr(), "numba") is not op and not isinstance(
-        _kernels.bsr_operator(A.tocsr(), "numba"), _kernels.BsrOperator)
+    C_ = A.tocsr()
+    assert _kernels.bsr_operator(C_, "numba") is C_
 
 
-def test_lanczos_and_krylov_products_use_the_compiled_kernel():
-    """With numba kernels the spectral-radius estimate and CG apply the matrix through the compiled
-    product: the same estimate and the same CG iterations as with scipy's products, to round-off."""
+@pytest.mark.parametrize("solver", ["amg-cg", "amg-gmres"])
+def test_lanczos_and_krylov_products_use_the_compiled_kernel(solver):
+    """With numba kernels the spectral-radius estimate and the Krylov method (CG, and GMRES through scipy's
+    ``aslinearoperator``) apply the matrix through the compiled product: the same estimate and the same
+    iterations as with scipy's products, to round-off."""
+    from springsim.linsolve import make_linear_solver
     from springsim.linsolve._sa import lanczos_rho
 
     M, _, A = _cloth_system()
@@ -286,3 +304,51 @@ def test_lanczos_and_krylov_products_use_the_compiled_kernel():
     assert rho["numba"] == pytest.approx(rho["scipy"], rel=1e-12)
     assert isinstance(AMGPreconditioner(kernels="numba").operator(A), _kernels.BsrOperator)
     assert AMGPreconditioner(kernels="scipy").operator(A) is A.bsr
+    b = np.random.default_rng(4).standard_normal(A.shape[0])
+    results = {k: make_linear_solver(solver, rtol=1e-10, kernels=k).solve(A, b) for k in ("numba", "scipy")}
+    for res in results.values():
+        assert res.converged and res.fallback is None and res.residual <= 1e-10
+    assert abs(results["numba"].iterations - results["scipy"].iterations) <= 1
+    np.testing.assert_allclose(results["numba"].x, results["scipy"].x, rtol=0, atol=1e-8 * np.abs(b).max())
+
+
+@pytest.mark.parametrize("R, K, upper", [(3, 3, False), (6, 3, False), (6, 6, False), (6, 3, True), (6, 6, True)])
+def test_scalar_held_products_equal_the_generic_loop(R, K, upper):
+    """The product kernels for inner sizes 3 and 6 (the block of X held in scalars) give bitwise the values of
+    the generic loop, general and upper-triangle (a symmetric Galerkin product ``P^T (A P)``) alike."""
+    from springsim.linsolve import _numba_kernels as nk
+
+    N = 6
+    if upper:
+        S = _random_bsr(24, 24, (K, K), 0.2, 7)
+        A = (S + S.T).tobsr(blocksize=(K, K))
+        P = _random_bsr(24, 30, (K, N), 0.2, 8)
+        X, Y = P.T.tobsr(blocksize=(N, K)), BsrProduct(A, P)(A, P)
+    else:
+        X, Y = _random_bsr(30, 24, (R, K), 0.15, 7), _random_bsr(24, 20, (K, N), 0.2, 8)
+    plan = BsrProduct(X, Y, symmetric=upper)
+    operands = (X.indptr, X.indices, np.ascontiguousarray(X.data), Y.indptr, Y.indices,
+                np.ascontiguousarray(Y.data), plan.indptr, plan.indices)
+    generic = np.zeros((plan.indices.size, R, N))
+    nk._matmat(*operands, generic, np.zeros_like(plan._marker), R, K, N, upper)
+    special = np.zeros_like(generic)
+    if K == 3:
+        nk._matmat_k3(*operands, special, np.zeros_like(plan._marker), R, N, upper)
+    else:
+        nk._matmat_k6(*operands, special, np.zeros_like(plan._marker), N, upper)
+    np.testing.assert_array_equal(special, generic)
+
+
+def test_nearby_check_samples_large_matrices():
+    """The nearby-reuse check on a matrix of 300,000 blocks (an odd stride above 8): a uniform 1 % change is
+    near (``nearby`` 0.02), 5 % is not, and a change of shape is never near."""
+    from types import SimpleNamespace
+
+    rng = np.random.default_rng(9)
+    old = rng.standard_normal((300_000, 3, 3))
+    pre = AMGPreconditioner(kernels="scipy", nearby=0.02)
+    pre.ml = SimpleNamespace(levels=[SimpleNamespace(A=SimpleNamespace(data=old))])
+    near = lambda data: pre._near(SimpleNamespace(bsr=SimpleNamespace(data=data)))  # noqa: E731
+    assert near(1.01 * old)
+    assert not near(1.05 * old)
+    assert not near(old[:-1])
