@@ -352,9 +352,29 @@ def _gauss_seidel(Ap, Aj, Ax, x, b, Dinv, R):
             x[i * R + r] = s
 
 
+@numba.njit(cache=True, inline="always")
+def _gauss_seidel_row3(Ap, Aj, Ax, x, b, Dinv, i, backward):
+    # block row i of a sweep with 3x3 blocks, the sums in scalars (in the generic kernel's order: bitwise
+    # the same); backward: the row's blocks from last to first
+    a0, a1, a2 = b[3 * i], b[3 * i + 1], b[3 * i + 2]
+    start, stop = Ap[i], Ap[i + 1]
+    for u in range(stop - start):
+        jj = stop - 1 - u if backward else start + u
+        j = Aj[jj]
+        if j != i:
+            x0, x1, x2 = x[3 * j], x[3 * j + 1], x[3 * j + 2]
+            a0 -= (Ax[jj, 0, 0] * x0 + Ax[jj, 0, 1] * x1) + Ax[jj, 0, 2] * x2
+            a1 -= (Ax[jj, 1, 0] * x0 + Ax[jj, 1, 1] * x1) + Ax[jj, 1, 2] * x2
+            a2 -= (Ax[jj, 2, 0] * x0 + Ax[jj, 2, 1] * x1) + Ax[jj, 2, 2] * x2
+    x[3 * i] = (Dinv[i, 0, 0] * a0 + Dinv[i, 0, 1] * a1) + Dinv[i, 0, 2] * a2
+    x[3 * i + 1] = (Dinv[i, 1, 0] * a0 + Dinv[i, 1, 1] * a1) + Dinv[i, 1, 2] * a2
+    x[3 * i + 2] = (Dinv[i, 2, 0] * a0 + Dinv[i, 2, 1] * a1) + Dinv[i, 2, 2] * a2
+
+
 @numba.njit(cache=True)
 def _gauss_seidel_3(Ap, Aj, Ax, x, b, Dinv):
-    _gauss_seidel(Ap, Aj, Ax, x, b, Dinv, 3)
+    for i in range(Ap.shape[0] - 1):
+        _gauss_seidel_row3(Ap, Aj, Ax, x, b, Dinv, i, False)
 
 
 @numba.njit(cache=True)
@@ -405,7 +425,9 @@ def _gauss_seidel_backward(Ap, Aj, Ax, x, b, Dinv, R):
 
 @numba.njit(cache=True)
 def _gauss_seidel_backward_3(Ap, Aj, Ax, x, b, Dinv):
-    _gauss_seidel_backward(Ap, Aj, Ax, x, b, Dinv, 3)
+    nb = Ap.shape[0] - 1
+    for t in range(nb):
+        _gauss_seidel_row3(Ap, Aj, Ax, x, b, Dinv, nb - 1 - t, True)
 
 
 @numba.njit(cache=True)
@@ -443,7 +465,21 @@ def _matvec(Ap, Aj, Ax, x, y, alpha, beta, R, C):
 
 @numba.njit(cache=True)
 def _matvec_33(Ap, Aj, Ax, x, y, alpha, beta):
-    _matvec(Ap, Aj, Ax, x, y, alpha, beta, 3, 3)
+    # _matvec with the sums of a block row in scalars (one store per row; equal to it to round-off)
+    for i in range(Ap.shape[0] - 1):
+        s0 = s1 = s2 = 0.0
+        for jj in range(Ap[i], Ap[i + 1]):
+            j = 3 * Aj[jj]
+            x0, x1, x2 = x[j], x[j + 1], x[j + 2]
+            s0 += (Ax[jj, 0, 0] * x0 + Ax[jj, 0, 1] * x1) + Ax[jj, 0, 2] * x2
+            s1 += (Ax[jj, 1, 0] * x0 + Ax[jj, 1, 1] * x1) + Ax[jj, 1, 2] * x2
+            s2 += (Ax[jj, 2, 0] * x0 + Ax[jj, 2, 1] * x1) + Ax[jj, 2, 2] * x2
+        if beta == 0.0:
+            y[3 * i], y[3 * i + 1], y[3 * i + 2] = alpha * s0, alpha * s1, alpha * s2
+        else:
+            y[3 * i] = beta * y[3 * i] + alpha * s0
+            y[3 * i + 1] = beta * y[3 * i + 1] + alpha * s1
+            y[3 * i + 2] = beta * y[3 * i + 2] + alpha * s2
 
 
 @numba.njit(cache=True)
