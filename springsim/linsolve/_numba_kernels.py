@@ -331,25 +331,36 @@ def smooth_prolongator(Cp, Cj, Cx, Dinv, scale, Tp, Tj, Tx):
         raise ValueError(f"block row {bad} of T lies outside the pattern of A T")
 
 
+@numba.njit(cache=True, inline="always")
+def _gauss_seidel_row(Ap, Aj, Ax, x, b, Dinv, i, backward, acc, R):
+    # block row i of a sweep: x_i = D_i^-1 (b_i - sum_{j != i} A_ij x_j); backward: the row's blocks from last
+    # to first (so that a backward sweep is bitwise the forward sweep on the matrix with its block rows and
+    # columns reversed, and pyamg's backward sweep, which walks a row's blocks forwards, to round-off)
+    for r in range(R):
+        acc[r] = b[i * R + r]
+    start, stop = Ap[i], Ap[i + 1]
+    for u in range(stop - start):
+        jj = stop - 1 - u if backward else start + u
+        j = Aj[jj]
+        if j != i:
+            for r in range(R):
+                s = 0.0
+                for c in range(R):
+                    s += Ax[jj, r, c] * x[j * R + c]
+                acc[r] -= s
+    for r in range(R):
+        s = 0.0
+        for c in range(R):
+            s += Dinv[i, r, c] * acc[c]
+        x[i * R + r] = s
+
+
 @numba.njit(cache=True)
-def _gauss_seidel(Ap, Aj, Ax, x, b, Dinv, R):
+def _gauss_seidel(Ap, Aj, Ax, x, b, Dinv, R, backward):
     acc = np.empty(R)
-    for i in range(Ap.shape[0] - 1):
-        for r in range(R):
-            acc[r] = b[i * R + r]
-        for jj in range(Ap[i], Ap[i + 1]):
-            j = Aj[jj]
-            if j != i:
-                for r in range(R):
-                    s = 0.0
-                    for c in range(R):
-                        s += Ax[jj, r, c] * x[j * R + c]
-                    acc[r] -= s
-        for r in range(R):
-            s = 0.0
-            for c in range(R):
-                s += Dinv[i, r, c] * acc[c]
-            x[i * R + r] = s
+    nb = Ap.shape[0] - 1
+    for t in range(nb):
+        _gauss_seidel_row(Ap, Aj, Ax, x, b, Dinv, nb - 1 - t if backward else t, backward, acc, R)
 
 
 @numba.njit(cache=True, inline="always")
@@ -379,7 +390,7 @@ def _gauss_seidel_3(Ap, Aj, Ax, x, b, Dinv):
 
 @numba.njit(cache=True)
 def _gauss_seidel_6(Ap, Aj, Ax, x, b, Dinv):
-    _gauss_seidel(Ap, Aj, Ax, x, b, Dinv, 6)
+    _gauss_seidel(Ap, Aj, Ax, x, b, Dinv, 6, False)
 
 
 _GS_SPECIAL = {3: _gauss_seidel_3, 6: _gauss_seidel_6}
@@ -391,36 +402,9 @@ def block_gauss_seidel_forward(Ap, Aj, Ax, x, b, Dinv):
     R = Ax.shape[1]
     f = _GS_SPECIAL.get(R)
     if f is None:
-        _gauss_seidel(Ap, Aj, Ax, x, b, Dinv, R)
+        _gauss_seidel(Ap, Aj, Ax, x, b, Dinv, R, False)
     else:
         f(Ap, Aj, Ax, x, b, Dinv)
-
-
-@numba.njit(cache=True)
-def _gauss_seidel_backward(Ap, Aj, Ax, x, b, Dinv, R):
-    # the rows from last to first, each row's blocks from last to first: bitwise the forward sweep on the matrix
-    # with its block rows and columns reversed, and pyamg's backward sweep (which walks a row's blocks forwards)
-    # to round-off
-    acc = np.empty(R)
-    nb = Ap.shape[0] - 1
-    for t in range(nb):
-        i = nb - 1 - t
-        for r in range(R):
-            acc[r] = b[i * R + r]
-        for u in range(Ap[i + 1] - Ap[i]):
-            jj = Ap[i + 1] - 1 - u
-            j = Aj[jj]
-            if j != i:
-                for r in range(R):
-                    s = 0.0
-                    for c in range(R):
-                        s += Ax[jj, r, c] * x[j * R + c]
-                    acc[r] -= s
-        for r in range(R):
-            s = 0.0
-            for c in range(R):
-                s += Dinv[i, r, c] * acc[c]
-            x[i * R + r] = s
 
 
 @numba.njit(cache=True)
@@ -432,7 +416,7 @@ def _gauss_seidel_backward_3(Ap, Aj, Ax, x, b, Dinv):
 
 @numba.njit(cache=True)
 def _gauss_seidel_backward_6(Ap, Aj, Ax, x, b, Dinv):
-    _gauss_seidel_backward(Ap, Aj, Ax, x, b, Dinv, 6)
+    _gauss_seidel(Ap, Aj, Ax, x, b, Dinv, 6, True)
 
 
 _GSB_SPECIAL = {3: _gauss_seidel_backward_3, 6: _gauss_seidel_backward_6}
@@ -444,7 +428,7 @@ def block_gauss_seidel_backward(Ap, Aj, Ax, x, b, Dinv):
     R = Ax.shape[1]
     f = _GSB_SPECIAL.get(R)
     if f is None:
-        _gauss_seidel_backward(Ap, Aj, Ax, x, b, Dinv, R)
+        _gauss_seidel(Ap, Aj, Ax, x, b, Dinv, R, True)
     else:
         f(Ap, Aj, Ax, x, b, Dinv)
 
