@@ -256,10 +256,8 @@ class _Level:
         from pyamg.util.utils import get_block_diag
 
         A, P, R = level.A, level.P, level.R
-        bs = A.blocksize[0]
-        nb = A.shape[0] // bs
-        dinv = get_block_diag(A, blocksize=bs, inv_flag=True)  # A.block_D_inv when the setup left it
-        self.bs, self.nb, self.nc = bs, nb, P.shape[1]
+        dinv = get_block_diag(A, blocksize=A.blocksize[0], inv_flag=True)  # A.block_D_inv when the setup left it
+        self.nc = P.shape[1]
         self.A = (A.indptr, A.indices, np.ascontiguousarray(A.data))
         self.dinv = np.ascontiguousarray(dinv)
         self.P = (P.indptr, P.indices, np.ascontiguousarray(P.data))

@@ -382,36 +382,26 @@ def _gauss_seidel_row3(Ap, Aj, Ax, x, b, Dinv, i, backward):
     x[3 * i + 2] = (Dinv[i, 2, 0] * a0 + Dinv[i, 2, 1] * a1) + Dinv[i, 2, 2] * a2
 
 
-@numba.njit(cache=True)
-def _gauss_seidel_3(Ap, Aj, Ax, x, b, Dinv):
-    for i in range(Ap.shape[0] - 1):
-        _gauss_seidel_row3(Ap, Aj, Ax, x, b, Dinv, i, False)
+@numba.njit(cache=True, inline="always")
+def _gauss_seidel_3(Ap, Aj, Ax, x, b, Dinv, backward):
+    nb = Ap.shape[0] - 1
+    for t in range(nb):
+        _gauss_seidel_row3(Ap, Aj, Ax, x, b, Dinv, nb - 1 - t if backward else t, backward)
 
 
 @numba.njit(cache=True)
-def _gauss_seidel_6(Ap, Aj, Ax, x, b, Dinv):
+def _gauss_seidel_forward_3(Ap, Aj, Ax, x, b, Dinv):
+    _gauss_seidel_3(Ap, Aj, Ax, x, b, Dinv, False)
+
+
+@numba.njit(cache=True)
+def _gauss_seidel_forward_6(Ap, Aj, Ax, x, b, Dinv):
     _gauss_seidel(Ap, Aj, Ax, x, b, Dinv, 6, False)
-
-
-_GS_SPECIAL = {3: _gauss_seidel_3, 6: _gauss_seidel_6}
-
-
-def block_gauss_seidel_forward(Ap, Aj, Ax, x, b, Dinv):
-    """One forward block Gauss-Seidel sweep on the BSR arrays ``(Ap, Aj, Ax)`` (``Ax`` (nnzb, R, R)),
-    ``x`` updated in place: ``x_i = D_i^-1 (b_i - sum_{j != i} A_ij x_j)`` row by row (``Dinv`` (nb, R, R))."""
-    R = Ax.shape[1]
-    f = _GS_SPECIAL.get(R)
-    if f is None:
-        _gauss_seidel(Ap, Aj, Ax, x, b, Dinv, R, False)
-    else:
-        f(Ap, Aj, Ax, x, b, Dinv)
 
 
 @numba.njit(cache=True)
 def _gauss_seidel_backward_3(Ap, Aj, Ax, x, b, Dinv):
-    nb = Ap.shape[0] - 1
-    for t in range(nb):
-        _gauss_seidel_row3(Ap, Aj, Ax, x, b, Dinv, nb - 1 - t, True)
+    _gauss_seidel_3(Ap, Aj, Ax, x, b, Dinv, True)
 
 
 @numba.njit(cache=True)
@@ -419,18 +409,29 @@ def _gauss_seidel_backward_6(Ap, Aj, Ax, x, b, Dinv):
     _gauss_seidel(Ap, Aj, Ax, x, b, Dinv, 6, True)
 
 
-_GSB_SPECIAL = {3: _gauss_seidel_backward_3, 6: _gauss_seidel_backward_6}
+_GS_SPECIAL = {(3, False): _gauss_seidel_forward_3, (6, False): _gauss_seidel_forward_6,
+               (3, True): _gauss_seidel_backward_3, (6, True): _gauss_seidel_backward_6}
+
+
+def _sweep(Ap, Aj, Ax, x, b, Dinv, backward):
+    R = Ax.shape[1]
+    f = _GS_SPECIAL.get((R, backward))
+    if f is None:
+        _gauss_seidel(Ap, Aj, Ax, x, b, Dinv, R, backward)
+    else:
+        f(Ap, Aj, Ax, x, b, Dinv)
+
+
+def block_gauss_seidel_forward(Ap, Aj, Ax, x, b, Dinv):
+    """One forward block Gauss-Seidel sweep on the BSR arrays ``(Ap, Aj, Ax)`` (``Ax`` (nnzb, R, R)),
+    ``x`` updated in place: ``x_i = D_i^-1 (b_i - sum_{j != i} A_ij x_j)`` row by row (``Dinv`` (nb, R, R))."""
+    _sweep(Ap, Aj, Ax, x, b, Dinv, False)
 
 
 def block_gauss_seidel_backward(Ap, Aj, Ax, x, b, Dinv):
     """One backward block Gauss-Seidel sweep, as :func:`block_gauss_seidel_forward` with the block rows
     (and the blocks within each row) taken from last to first."""
-    R = Ax.shape[1]
-    f = _GSB_SPECIAL.get(R)
-    if f is None:
-        _gauss_seidel(Ap, Aj, Ax, x, b, Dinv, R, True)
-    else:
-        f(Ap, Aj, Ax, x, b, Dinv)
+    _sweep(Ap, Aj, Ax, x, b, Dinv, True)
 
 
 @numba.njit(cache=True)
