@@ -120,6 +120,9 @@ def main(argv=None) -> int:
     p.add_argument("--frames", type=int, default=frame_cost.DEFAULT_FRAMES, help="frames of the window")
     p.add_argument("--budget", type=float, default=14400.0,
                    help="wall-time budget per size and stiffness [s] (default 14400: a sweep runs every candidate)")
+    p.add_argument("--cross-check-max-n", type=int, default=None,
+                   help="cross-check the references with solve_ivp at sizes up to this (default: frame-cost's; "
+                        "0: never, the floor is then the Verlet levels' difference alone)")
     p.add_argument("--quick", action="store_true", help="n = 6, ke 1e3 1e4, two candidates, 20 frames (tests)")
     p.add_argument("--replot", action="store_true", help="only redraw the plot from the CSV of an earlier run")
     p.add_argument("--merge", type=Path, nargs="*", default=[], metavar="CSV",
@@ -143,6 +146,8 @@ def main(argv=None) -> int:
         d = a.out / "stiffness_sweep" / f"ke{ke:g}"
         args = ["--ke", f"{ke:g}", "--sizes", *map(str, a.sizes), "--measure-all", "--frames", str(a.frames),
                 "--target", str(a.target), "--budget", str(a.budget), "--out", str(d), "--candidates", *a.candidates]
+        if a.cross_check_max_n is not None:
+            args += ["--cross-check-max-n", str(a.cross_check_max_n)]
         if a.quick:
             args += ["--explicit-window", "0.05"]
         frame_cost.main(args)

@@ -270,9 +270,9 @@ class CompiledVCycle:
     The cycle of pyamg's ``MultilevelSolver`` with block Gauss-Seidel smoothing, a forward sweep
     before and a backward one after (a symmetric cycle, as CG needs), the coarse correction through
     each level's ``R`` and ``P``, and the coarsest level by ``coarse_solver(A, b)`` (pyamg's): equal to
-    pyamg's cycle to round-off, about 0.75x its time on a 195,840-DOF cloth (the compiled sweeps and
-    products, no temporaries beyond the level vectors). Single-precision copies of the levels' matrices
-    were tried and not kept: no faster (BENCHMARKS.md, section 5).
+    pyamg's cycle to round-off, in less time (the compiled sweeps and mat-vecs, no temporaries beyond
+    the level vectors; measured per kernel in BENCHMARKS.md, section 5, "Compiled kernels").
+    Single-precision copies of the levels' matrices were tried and not kept: no faster (same section).
 
     Called with a right-hand side ``r``, returns the cycle's ``M^-1 r`` (a new array).
     """

@@ -232,3 +232,28 @@ def test_stiffness_sweep_merge_replaces_same_size_stiffness_and_method():
     assert len(merged) == len(shipped) + 1
     assert [r["cpu_per_frame_s"] for r in merged if (r["n"], r["ke"], r["method"]) ==
             (new["n"], new["ke"], new["method"])] == [123.0]
+
+
+def test_stiffness_sweep_passes_cross_check_limit(tmp_path, monkeypatch):
+    """``--cross-check-max-n`` reaches every frame-cost run of the sweep (0: no solve_ivp cross-check, for
+    stiffnesses where it cannot finish), and is left to frame-cost's default when not given."""
+    from benchmarks import frame_cost as fc
+    from benchmarks import stiffness_sweep as sw
+
+    calls = []
+
+    def fake_main(args):
+        calls.append(list(args))
+        out = Path(args[args.index("--out") + 1])
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "frame_cost.csv").write_text("n\n")
+        (out / "frame_cost_candidates.csv").write_text("n\n")
+        return 0
+
+    monkeypatch.setattr(fc, "main", fake_main)
+    monkeypatch.setattr(sw, "plot", lambda *a, **k: False)
+    assert sw.main(["--sizes", "64", "--ke", "1e6", "1e7", "--cross-check-max-n", "0", "--out", str(tmp_path)]) == 0
+    assert len(calls) == 2 and all(c[c.index("--cross-check-max-n") + 1] == "0" for c in calls)
+    calls.clear()
+    assert sw.main(["--sizes", "64", "--ke", "1e6", "--out", str(tmp_path)]) == 0
+    assert len(calls) == 1 and "--cross-check-max-n" not in calls[0]
