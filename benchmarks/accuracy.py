@@ -67,7 +67,7 @@ T_DEFAULT = 1.17
 T_END = T_DEFAULT
 H_MAX = None  # step cap of the adaptive runs [s] (--h-max; None: the driver's default)
 H_ANIM = 1.0 / 60.0
-METHODS = ("implicit_euler", "bdf2", "tr_bdf2")
+METHODS = ("implicit_euler", "bdf2", "tr_bdf2", "energy_momentum")
 #: Newton iteration limit of every run (PA2's 5 leaves 13-18 of 70 steps unconverged on the
 #: n = 32 cloth at h = 1/60 s for implicit Euler and BDF2; 20 converges them, so errors are the methods')
 NEWTON_MAXITER = NEWTON_DEFAULT = 20

@@ -159,8 +159,8 @@ class SolverConfig:
                                       to="integrator", help="Newton update tolerance on |dv| [m/s] (default 1e-5)")
     newton_maxiter: int | None = option(None, kind="int", cli="--newton-maxiter", metavar="N", lo=1, hi=10**6,
                                         to="integrator",
-                                        help="Newton iteration limit (default 5 for implicit_euler, 50 for bdf2 "
-                                             "and tr_bdf2)")
+                                        help="Newton iteration limit (default 5 for implicit_euler, 50 for bdf2, "
+                                             "tr_bdf2 and energy_momentum)")
     residual_rtol: float | None = option(None, kind="float", cli="--residual-rtol", metavar="R", lo=0.0,
                                          strict=True, to="integrator",
                                          help="Newton residual tolerance, relative to the balanced terms "

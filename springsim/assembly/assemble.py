@@ -186,7 +186,8 @@ class SystemAssembler:
         D = m.bsr.data[self.pattern.diagonal_positions].reshape(-1, 9)
         return float(np.finfo(np.float64).eps * (np.abs(D).max(axis=1) / self._free_mass).max())
 
-    def assemble(self, q: np.ndarray, qd: np.ndarray, a: float, b: float, mode: str = "exact") -> SystemMatrix:
+    def assemble(self, q: np.ndarray, qd: np.ndarray, a: float, b: float, mode: str = "exact", *,
+                 q_start: np.ndarray | None = None) -> SystemMatrix:
         """Fill and return :attr:`matrix` = ``M - a dF/dq - b dF/dqd`` at ``(q, qd)``.
 
         Parameters
@@ -196,6 +197,9 @@ class SystemAssembler:
         a, b : float
             Coefficients of the position and velocity Jacobians.
         mode : {"exact", "symmetric", "spd"}
+        q_start : ndarray (N, 3), optional
+            With it, ``F`` is the energy-momentum force over the step from ``q_start`` to ``2 q - q_start``
+            and ``q`` its midpoint (:meth:`~springsim.forces.ForceTerm.eval_jacobians_discrete`).
         """
         if mode not in JACOBIAN_MODES:
             raise ValueError(f"jacobian mode must be one of {', '.join(JACOBIAN_MODES)}, got {mode!r}")
@@ -204,7 +208,11 @@ class SystemAssembler:
         for term in self.terms:
             jq, jqd = (None, None)
             if term.layout_q is not None or term.layout_qd is not None:
-                jq, jqd = term.eval_jacobians(q, qd, mode, work=self._work[id(term)])
+                if q_start is None:
+                    jq, jqd = term.eval_jacobians(q, qd, mode, work=self._work[id(term)])
+                else:
+                    jq, jqd = term.eval_jacobians_discrete(q_start, 2.0 * q - q_start, qd, mode,
+                                                           work=self._work[id(term)])
             for src_term, which, off, cnt in self._sources:
                 if src_term is not term:
                     continue
@@ -216,7 +224,8 @@ class SystemAssembler:
             _scatter_add(self._scatter, V.reshape(-1, 9), data.reshape(-1, 9))
         m = self.matrix
         m.mode = mode
-        m.symmetric = all(t.jacobian_symmetric(mode) for t in self.terms)
+        m.symmetric = all(t.jacobian_symmetric(mode) if q_start is None else t.jacobian_symmetric_discrete(mode)
+                          for t in self.terms)
         m.positions = q[self.free]
         m.version += 1
         self.last_time_s = time.perf_counter() - t0

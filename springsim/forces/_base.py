@@ -142,6 +142,30 @@ class ForceTerm(ABC):
         """
         return None, None
 
+    def eval_force_discrete(self, q0: np.ndarray, q1: np.ndarray, qd: np.ndarray, f_out: np.ndarray) -> None:
+        """Accumulate this term's force over the step from ``q0`` to ``q1`` into ``f_out`` (N, 3).
+
+        The force of the energy-momentum integrator (:mod:`springsim.integrators.energy_momentum`): its
+        conservative part is a discrete gradient of :meth:`potential_energy` (Gonzalez 1996),
+        ``F . (q1 - q0) = -(V(q1) - V(q0))`` exactly, its dissipative part is evaluated at the midpoint with
+        the velocity ``qd``. This default, the force at the midpoint ``(q0 + q1)/2``, is exact for
+        dissipative terms and for potentials at most quadratic in ``q`` (uniform gravity); terms with other
+        potentials override it.
+        """
+        self.eval_force(0.5 * (q0 + q1), qd, f_out)
+
+    def eval_jacobians_discrete(self, q0: np.ndarray, q1: np.ndarray, qd: np.ndarray, mode: str = "exact", *,
+                                work: dict | None = None) -> tuple[Blocks | None, Blocks | None]:
+        """Derivatives of :meth:`eval_force_discrete` with respect to the midpoint ``q_m = (q0 + q1)/2`` (``q0``
+        held, ``q1 = 2 q_m - q0``) and to ``qd``, as :meth:`eval_jacobians` gives them (same layouts, modes and
+        ``work``). At ``q0 = q1`` they are the ordinary Jacobians. This default, the Jacobians at the midpoint,
+        goes with the default :meth:`eval_force_discrete`."""
+        return self.eval_jacobians(0.5 * (q0 + q1), qd, mode, work=work)
+
+    def jacobian_symmetric_discrete(self, mode: str) -> bool:
+        """:meth:`jacobian_symmetric` for :meth:`eval_jacobians_discrete`."""
+        return self.jacobian_symmetric(mode)
+
     def jacobian_symmetric(self, mode: str) -> bool:
         """Whether this term's contribution ``-a dF/dq - b dF/dqd`` to the system matrix is symmetric
         in Jacobian ``mode`` (every ``a``, ``b``). Terms with a non-symmetric derivative override it;

@@ -9,6 +9,20 @@ For a pair (i, j) with ``c = G m_i m_j``, ``d = q_i - q_j``, ``l = |d|``, ``n = 
 ``spd`` mode projects it to ``K = -c/l^3 (I - n n^T)`` (negative eigenvalue clamped
 at 0). There is no velocity dependence.
 
+Energy-momentum form (:meth:`ForceGravitational.eval_force_discrete`, Gonzalez 1996): over a step from
+``d_0`` to ``d_1`` the force is ``-s d_m``, ``d_m = (d_0 + d_1)/2``, with the difference quotient
+``s = (phi(l_1) - phi(l_0)) / ((l_1^2 - l_0^2)/2)`` of the pair potential ``phi``; outside the core that is
+``s = 2c / (l_0 l_1 (l_0 + l_1))`` (no cancellation), inside it ``c/eps^3``. Its work is exactly
+``-(phi(l_1) - phi(l_0))``, except where the pair crosses the core boundary by less than ``1e-6 eps`` (there
+``s = c / lbar^3``, relative error below 1e-6). Its derivative with respect to the midpoint
+``q_m = (q_0 + q_1)/2`` (``q_0`` held; :meth:`ForceGravitational.eval_jacobians_discrete`) is::
+
+    exact : K = -[ s I + 2 (ds/dl_1) d_m n_1^T ]
+
+(not symmetric; ``ds/dl_1`` is taken as 0 in the narrow core crossing); ``symmetric`` replaces ``d_m n_1^T``
+by ``|d_m| n_m n_m^T`` and ``spd`` also clamps the coefficient of ``n_m n_m^T`` at ``-s``. At ``q_0 = q_1``
+these are the ordinary Jacobians.
+
 Softening: below the pair's softening length ``l < eps`` the force is ``-c d / eps^3`` (a
 linear core, continuous at ``l = eps``) with ``K = -c/eps^3 I``, so a close encounter or
 two particles at the same place stay finite. ``eps`` is per pair
@@ -66,6 +80,64 @@ class ForceGravitational(ForceTerm):
         d *= (-self.c / ls**3)[:, None]
         self.incidence.scatter(d, f_out)
 
+    @staticmethod
+    def _potential(l, c, eps):
+        """Pair potentials ``phi(l)`` of the softened attraction (module docstring)."""
+        return np.where(l < eps, c * l**2 / (2 * eps**3) - 1.5 * c / eps, -c / np.maximum(l, eps))
+
+    def _discrete_coefficient(self, q0, q1):
+        """``(d_m, l_1, d_1, s, ds/dl_1)`` of the discrete gradient ``-s d_m`` (module docstring)."""
+        d0 = self.incidence.diff(q0)
+        d1 = self.incidence.diff(q1)
+        l0 = np.sqrt(np.einsum("ij,ij->i", d0, d0))
+        l1 = np.sqrt(np.einsum("ij,ij->i", d1, d1))
+        dm = 0.5 * (d0 + d1)
+        far = (l0 >= self.eps) & (l1 >= self.eps)
+        s = self.c / self.eps**3  # both ends in the core: phi is quadratic there
+        s1 = np.zeros_like(l0)
+        lsum = l0[far] + l1[far]
+        s[far] = 2.0 * self.c[far] / (l0[far] * l1[far] * lsum)
+        s1[far] = -s[far] * (1.0 / l1[far] + 1.0 / lsum)
+        cross = np.flatnonzero(~far & ((l0 >= self.eps) | (l1 >= self.eps)))
+        if cross.size:  # one end in the core: the difference quotient, phi'(lbar)/lbar where it would cancel
+            a, b, c, e = l0[cross], l1[cross], self.c[cross], self.eps[cross]
+            wide = np.abs(b - a) > 1e-6 * e
+            half = np.where(wide, 0.5 * (b * b - a * a), 1.0)
+            quotient = (self._potential(b, c, e) - self._potential(a, c, e)) / half
+            s[cross] = np.where(wide, quotient, c / np.maximum(0.5 * (a + b), e) ** 3)
+            dphi = np.where(b < e, c * b / e**3, c / np.maximum(b, e) ** 2)  # phi'(l_1)
+            s1[cross] = np.where(wide, (dphi - quotient * b) / half, 0.0)
+        return dm, l1, d1, s, s1
+
+    def eval_force_discrete(self, q0, q1, qd, f_out):
+        """Discrete gradient of the softened pair potential ``phi(l)`` (module docstring)."""
+        dm, _, _, s, _ = self._discrete_coefficient(q0, q1)
+        dm *= -s[:, None]
+        self.incidence.scatter(dm, f_out)
+
+    def eval_jacobians_discrete(self, q0, q1, qd, mode="exact", *, work=None):
+        """Derivative of :meth:`eval_force_discrete` with respect to the midpoint (module docstring)."""
+        P = self.pairs.shape[0]
+        dm, l1, d1, s, s1 = self._discrete_coefficient(q0, q1)
+        K = scratch(work, "K", (P, 3, 3))
+        if mode == "exact":
+            n1 = np.divide(d1, l1[:, None], out=np.zeros_like(d1), where=(l1 > 0)[:, None])
+            outer(dm, n1, out=K)
+            K *= (-2.0 * s1)[:, None, None]
+        else:
+            lm = np.sqrt(np.einsum("ij,ij->i", dm, dm))
+            nm = np.divide(dm, lm[:, None], out=np.zeros_like(dm), where=(lm > 0)[:, None])
+            w = 2.0 * s1 * lm
+            if mode == "spd":
+                w = np.maximum(w, -s)
+            outer(nm, nm, out=K)
+            K *= -w[:, None, None]
+        K.reshape(-1, 9)[:, ::4] -= s[:, None]
+        return Blocks(self.layout_q, K), None
+
+    def jacobian_symmetric_discrete(self, mode: str) -> bool:
+        return mode != "exact"
+
     def eval_jacobians(self, q, qd, mode="exact", *, work=None):
         P = self.pairs.shape[0]
         d, l, n, near = pair_geometry(q, self.pairs, self.eps, work)
@@ -82,6 +154,4 @@ class ForceGravitational(ForceTerm):
 
     def potential_energy(self, q):
         d, l, n, near = pair_geometry(q, self.pairs, self.eps)
-        far = -self.c / np.maximum(l, self.eps)
-        core = self.c * l**2 / (2 * self.eps**3) - 1.5 * self.c / self.eps
-        return float(np.sum(np.where(near, core, far)))
+        return float(np.sum(self._potential(l, self.c, self.eps)))

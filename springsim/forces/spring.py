@@ -11,6 +11,20 @@ and the local 6x6 Jacobians are ``[[K, -K], [-K, K]]`` with::
                  -(b/l) [ (n . v) I + n v^T ] (I - n n^T)       (damping, section 5.4)
     dF/dqd : K = -b n n^T
 
+Energy-momentum form (:meth:`ForceSpring.eval_force_discrete`, Gonzalez 1996): over a step from ``d_0`` to
+``d_1`` the elastic force is ``-k (1 - l0/lbar) d_m`` with ``lbar = (l_0 + l_1)/2`` and ``d_m = (d_0 + d_1)/2``.
+Since ``d_m . (d_1 - d_0) = (l_1^2 - l_0^2)/2``, its work is ``-k (lbar - l0)(l_1 - l_0)``, exactly minus the
+change of ``k/2 (l - l0)^2``; it is the midpoint force when ``l_0 = l_1`` and has no division by a small
+difference. ``lbar`` is clamped at ``eps`` as ``l`` is above (the identity holds for ``lbar >= eps``).
+The damping force is evaluated at the midpoint geometry ``d_m``. Its derivatives with respect to the
+midpoint ``q_m = (q_0 + q_1)/2`` (``q_0`` held, :meth:`ForceSpring.eval_jacobians_discrete`) are, with
+``n_1 = d_1 / l_1``::
+
+    exact : K = -k [ (l0/lbar^2) d_m n_1^T + (1 - l0/lbar) I ]     (+ the damping terms at d_m)
+
+(not symmetric); ``symmetric`` replaces ``d_m n_1^T`` by ``|d_m| n_m n_m^T``, and ``spd`` also clamps
+``1 - l0/lbar`` at 0 as above. At ``q_0 = q_1`` all three equal the ordinary Jacobians.
+
 Jacobian modes: ``symmetric`` drops the non-symmetric damping position term;
 ``spd`` also clamps the transverse coefficient ``(l - l0)/l`` at 0 so that ``-dF/dq``
 is positive semi-definite.
@@ -78,19 +92,19 @@ class ForceSpring(ForceTerm):
         """``1 - l0/l`` with ``l`` clamped at eps (the force is ``-k * coef * d``)."""
         return 1.0 - self.l0 / np.where(near, self.eps, l)
 
-    def eval_force(self, q, qd, f_out):
-        # elastic: f = -k (1 - l0/max(l, eps)) d, no direction vector needed
-        d = self.incidence.diff(q)
-        l = np.sqrt(np.einsum("ij,ij->i", d, d))
-        damping = None
-        if self.damped.size:  # -b (n . v) n, with n = 0 below eps
-            s = self.damped
-            ls = l[s]
-            inv = np.divide(1.0, ls, out=np.zeros_like(ls), where=ls >= self.eps)
-            n = d[s] * inv[:, None]
-            v = self._damped_incidence.diff(qd)
-            damping = (self._kd_damped * np.einsum("ij,ij->i", n, v))[:, None] * n
-        scale = np.maximum(l, self.eps, out=l)
+    def _damping(self, d, l, qd):
+        """Damping forces ``b (n . v) n`` (to subtract) of the damped springs, given all pair vectors ``d`` and
+        lengths ``l``; ``n = 0`` below eps."""
+        s = self.damped
+        ls = l[s]
+        inv = np.divide(1.0, ls, out=np.zeros_like(ls), where=ls >= self.eps)
+        n = d[s] * inv[:, None]
+        v = self._damped_incidence.diff(qd)
+        return (self._kd_damped * np.einsum("ij,ij->i", n, v))[:, None] * n
+
+    def _scatter_elastic(self, d, length, damping, f_out):
+        """Scatter ``-k (1 - l0/max(length, eps)) d - damping``; overwrites ``d`` and ``length``."""
+        scale = np.maximum(length, self.eps, out=length)
         np.divide(self.l0, scale, out=scale)
         scale -= 1.0
         scale *= self.ke  # -k (1 - l0/l)
@@ -98,6 +112,27 @@ class ForceSpring(ForceTerm):
         if damping is not None:
             f[self.damped] -= damping
         self.incidence.scatter(f, f_out)
+
+    def eval_force(self, q, qd, f_out):
+        # elastic: f = -k (1 - l0/max(l, eps)) d, no direction vector needed
+        d = self.incidence.diff(q)
+        l = np.sqrt(np.einsum("ij,ij->i", d, d))
+        damping = self._damping(d, l, qd) if self.damped.size else None
+        self._scatter_elastic(d, l, damping, f_out)
+
+    def eval_force_discrete(self, q0, q1, qd, f_out):
+        """Discrete gradient of ``k/2 (l - l0)^2`` (module docstring) plus the damping at the midpoint."""
+        d0 = self.incidence.diff(q0)
+        d = self.incidence.diff(q1)
+        lbar = np.sqrt(np.einsum("ij,ij->i", d0, d0))
+        lbar += np.sqrt(np.einsum("ij,ij->i", d, d))
+        lbar *= 0.5
+        d += d0
+        d *= 0.5  # the midpoint's pair vector
+        damping = None
+        if self.damped.size:
+            damping = self._damping(d, np.sqrt(np.einsum("ij,ij->i", d, d)), qd)
+        self._scatter_elastic(d, lbar, damping, f_out)
 
     def eval_jacobians(self, q, qd, mode="exact", *, work=None):
         P = self.pairs.shape[0]
@@ -111,21 +146,54 @@ class ForceSpring(ForceTerm):
         K = np.multiply(nn, (self.ke * (coef - 1.0))[:, None, None], out=scratch(work, "K", (P, 3, 3)))
         diag = K.reshape(-1, 9)[:, ::4]
         diag -= (self.ke * coef)[:, None]
-        dfdqd = None
-        if self.damped.size:
-            s = self.damped
-            b = self.kd[s]
-            p = self.pairs[s]
-            ns = n[s]
-            if mode == "exact":
-                v = qd[p[:, 0]] - qd[p[:, 1]]
-                ls = np.where(near[s], self.eps, l[s])
-                nv = np.einsum("ij,ij->i", ns, v)
-                Kd = nv[:, None, None] * _I3 + outer(ns, v)
-                Kd = Kd @ (_I3 - nn[s])
-                K[s] -= (b / ls)[:, None, None] * Kd
-            dfdqd = Blocks(self.layout_qd, -b[:, None, None] * nn[s])
-        return Blocks(self.layout_q, K), dfdqd
+        return Blocks(self.layout_q, K), self._damping_jacobians(K, l, n, nn, near, qd, mode)
+
+    def _damping_jacobians(self, K, l, n, nn, near, qd, mode):
+        """Subtract the damping's position derivative (exact mode) from ``K``; return its velocity derivative."""
+        if not self.damped.size:
+            return None
+        s = self.damped
+        b = self.kd[s]
+        p = self.pairs[s]
+        ns = n[s]
+        if mode == "exact":
+            v = qd[p[:, 0]] - qd[p[:, 1]]
+            ls = np.where(near[s], self.eps, l[s])
+            nv = np.einsum("ij,ij->i", ns, v)
+            Kd = nv[:, None, None] * _I3 + outer(ns, v)
+            Kd = Kd @ (_I3 - nn[s])
+            K[s] -= (b / ls)[:, None, None] * Kd
+        return Blocks(self.layout_qd, -b[:, None, None] * nn[s])
+
+    def eval_jacobians_discrete(self, q0, q1, qd, mode="exact", *, work=None):
+        """Derivatives of :meth:`eval_force_discrete` with respect to the midpoint (module docstring)."""
+        P = self.pairs.shape[0]
+        qm = 0.5 * (q0 + q1)
+        d, l, n, near = pair_geometry(qm, self.pairs, self.eps, work)  # midpoint geometry, for the damping
+        nn = outer(n, n, out=scratch(work, "nn", (P, 3, 3)))
+        d0 = self.incidence.diff(q0)
+        d1 = self.incidence.diff(q1)
+        l1 = np.sqrt(np.einsum("ij,ij->i", d1, d1))
+        lraw = 0.5 * (np.sqrt(np.einsum("ij,ij->i", d0, d0)) + l1)
+        lbar = np.maximum(lraw, self.eps)
+        coef = 1.0 - self.l0 / lbar
+        if mode == "spd":
+            coef = np.maximum(coef, 0.0)
+        # K = -k [ (1 - coef)/lbar d_m n_1^T + coef I ] (exact), with |d_m| n_m n_m^T for d_m n_1^T otherwise;
+        # the first part is zero where the clamp at eps makes lbar constant
+        w = np.where(lraw >= self.eps, (1.0 - coef) / lbar, 0.0)
+        K = scratch(work, "K", (P, 3, 3))
+        if mode == "exact":
+            n1 = np.divide(d1, l1[:, None], out=np.zeros_like(d1), where=(l1 >= self.eps)[:, None])
+            outer(d, n1, out=K)
+            K *= (-self.ke * w)[:, None, None]
+        else:
+            np.multiply(nn, (-self.ke * w * l)[:, None, None], out=K)
+        K.reshape(-1, 9)[:, ::4] -= (self.ke * coef)[:, None]
+        return Blocks(self.layout_q, K), self._damping_jacobians(K, l, n, nn, near, qd, mode)
+
+    def jacobian_symmetric_discrete(self, mode: str) -> bool:
+        return mode != "exact"
 
     def potential_energy(self, q):
         d, l, n, near = pair_geometry(q, self.pairs, self.eps)

@@ -16,12 +16,13 @@ from .midpoint import IntegratorMidpoint
 from .symplectic_euler import IntegratorSymplecticEuler
 from .bdf2 import IntegratorBDF2
 from .tr_bdf2 import IntegratorTRBDF2
+from .energy_momentum import IntegratorEnergyMomentum
 
 __all__ = ["INTEGRATORS", "Integrator", "ImplicitIntegrator", "StepStats", "PRECISION_LOSS_LIMIT", "ConvergenceWarning",
            "NewtonConvergenceWarning",
            "IntegratorExplicitEuler", "IntegratorSymplecticEuler", "IntegratorMidpoint",
            "IntegratorLinearizedImplicit", "IntegratorImplicitEuler", "IntegratorBDF2", "IntegratorTRBDF2",
-           "make_integrator", "integrator_class"]
+           "IntegratorEnergyMomentum", "make_integrator", "integrator_class"]
 
 #: Registry: YAML/CLI name -> class.
 INTEGRATORS: dict[str, type[Integrator]] = {
@@ -32,6 +33,7 @@ INTEGRATORS: dict[str, type[Integrator]] = {
     "implicit_euler": IntegratorImplicitEuler,
     "bdf2": IntegratorBDF2,
     "tr_bdf2": IntegratorTRBDF2,
+    "energy_momentum": IntegratorEnergyMomentum,
 }
 
 

@@ -377,7 +377,7 @@ class ImplicitIntegrator(Integrator):
         step = 0.0
         forcing = StageForcing(self.forcing if converge else "fixed", eta_max=self.forcing_max, floor=self.solver.rtol)
         for it in range(maxiter):
-            A = asm.assemble(q, v, c * c, c, mode)
+            A = self.stage_matrix(q, v, c, mode)
             stats.assembly_s += asm.last_time_s
             stats.precision_loss = max(stats.precision_loss, asm.precision_loss(A))
             res = self._linear_solve(A, asm.gather(R), stats, first=(it == 0), rtol=forcing.rtol(rnorm))
@@ -408,7 +408,7 @@ class ImplicitIntegrator(Integrator):
     def _residual(self, q, v, v_hat, c, f, stats):
         """``R = c F(q, v) - M (v - v_hat)`` (N, 3), ``|R|_2`` and ``rho`` over free DOFs (module docstring)."""
         t0 = time.perf_counter()
-        eval_forces(self.terms, q, v, out=f)
+        self.stage_forces(q, v, f)
         free = self.free
         cf = c * f[free]
         mdv = self._mass[free] * (v[free] - v_hat[free])
@@ -417,6 +417,16 @@ class ImplicitIntegrator(Integrator):
         scale = float(np.linalg.norm(cf)) + float(np.linalg.norm(mdv)) + self.newton_tol * self._mass_norm
         stats.force_s += time.perf_counter() - t0
         return R, rnorm, (rnorm / scale if scale > 0 else 0.0)
+
+    def stage_forces(self, q: np.ndarray, v: np.ndarray, f: np.ndarray) -> None:
+        """The force ``F(q, v)`` of the stage equation into ``f`` (N, 3); methods whose stage balances another
+        force (:mod:`~springsim.integrators.energy_momentum`) override it."""
+        eval_forces(self.terms, q, v, out=f)
+
+    def stage_matrix(self, q: np.ndarray, v: np.ndarray, c: float, mode: str):
+        """Newton's matrix ``M - c^2 dF/dq - c dF/dqd`` of the stage equation at ``(q, v)``, for the force of
+        :meth:`stage_forces`."""
+        return self.assembler.assemble(q, v, c * c, c, mode)
 
     def _linear_solve(self, A, b, stats, first: bool, rtol: float | None = None):
         x0 = self._warm if (first and self._warm is not None and self._warm.shape == b.shape) else None

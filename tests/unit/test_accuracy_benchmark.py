@@ -32,7 +32,7 @@ def test_run_size_writes_tables_and_caches_the_reference(acc, tmp_path, capsys):
     assert (tmp_path / "accuracy_reference_n3_steps40.npz").exists()
     assert "reference saved" in capsys.readouterr().out
     h60 = _rows(tmp_path / "accuracy_at_animation_steps_h60_n3.csv")
-    assert [r["method"] for r in h60] == ["implicit_euler", "bdf2", "tr_bdf2", "trapezoidal"]
+    assert [r["method"] for r in h60] == ["implicit_euler", "bdf2", "tr_bdf2", "energy_momentum", "trapezoidal"]
     err = {r["method"]: float(r["rms_err_m"]) for r in h60}
     assert all(np.isfinite(e) and e >= 0 for e in err.values())
     assert err["tr_bdf2"] < err["implicit_euler"]  # second order beats first order at the same step

@@ -1,4 +1,5 @@
-"""Observed orders of implicit Euler (1), BDF2 and TR-BDF2 (2) against the Radau reference; energy behaviour."""
+"""Observed orders of implicit Euler (1), BDF2, TR-BDF2 and the energy-momentum method (2) against the Radau
+reference; energy behaviour."""
 
 import numpy as np
 import pytest
@@ -25,7 +26,8 @@ def _final_error(model, q_ref, name, steps):
     return float(np.sqrt(np.mean((tr.q[-1] - q_ref) ** 2)))
 
 
-@pytest.mark.parametrize("name, order", [("implicit_euler", 1.0), ("bdf2", 2.0), ("tr_bdf2", 2.0)])
+@pytest.mark.parametrize("name, order", [("implicit_euler", 1.0), ("bdf2", 2.0), ("tr_bdf2", 2.0),
+                                         ("energy_momentum", 2.0)])
 def test_observed_order(cloth_case, name, order):
     """Halving h divides the final RMS position error by 2^p: p in [0.8, 1.2] (IE) or [1.8, 2.2]."""
     model, q_ref = cloth_case
@@ -52,3 +54,9 @@ def test_energy_decay_ordering():
     e_ie, e_bdf2, e_tr = (_spring_energy(n) for n in ("implicit_euler", "bdf2", "tr_bdf2"))
     assert e_ie < e_bdf2 < e_tr <= 1.0 + 1e-9
     assert e_tr > 0.9
+
+
+def test_energy_momentum_keeps_the_spring_energy():
+    """The energy-momentum method keeps the undamped spring's energy (to the Newton tolerance) where TR-BDF2 loses
+    some."""
+    assert abs(_spring_energy("energy_momentum") - 1.0) <= 1e-9
