@@ -13,13 +13,13 @@ Energy-momentum form (:meth:`ForceGravitational.eval_force_discrete`, Gonzalez 1
 ``d_0`` to ``d_1`` the force is ``-s d_m``, ``d_m = (d_0 + d_1)/2``, with the difference quotient
 ``s = (phi(l_1) - phi(l_0)) / ((l_1^2 - l_0^2)/2)`` of the pair potential ``phi``; outside the core that is
 ``s = 2c / (l_0 l_1 (l_0 + l_1))`` (no cancellation), inside it ``c/eps^3``. Its work is exactly
-``-(phi(l_1) - phi(l_0))``, except where the pair crosses the core boundary by less than ``1e-6 eps`` (there
-``s = c / lbar^3``, relative error below 1e-6). Its derivative with respect to the midpoint
+``-(phi(l_1) - phi(l_0))`` (across the core boundary the numerator is split at ``eps`` into two positive
+parts, so nothing cancels). Its derivative with respect to the midpoint
 ``q_m = (q_0 + q_1)/2`` (``q_0`` held; :meth:`ForceGravitational.eval_jacobians_discrete`) is::
 
     exact : K = -[ s I + 2 (ds/dl_1) d_m n_1^T ]
 
-(not symmetric; ``ds/dl_1`` is taken as 0 in the narrow core crossing); ``symmetric`` replaces ``d_m n_1^T``
+(not symmetric); ``symmetric`` replaces ``d_m n_1^T``
 by ``|d_m| n_m n_m^T`` and ``spd`` also clamps the coefficient of ``n_m n_m^T`` at ``-s``. At ``q_0 = q_1``
 these are the ordinary Jacobians.
 
@@ -99,14 +99,14 @@ class ForceGravitational(ForceTerm):
         s[far] = 2.0 * self.c[far] / (l0[far] * l1[far] * lsum)
         s1[far] = -s[far] * (1.0 / l1[far] + 1.0 / lsum)
         cross = np.flatnonzero(~far & ((l0 >= self.eps) | (l1 >= self.eps)))
-        if cross.size:  # one end in the core: the difference quotient, phi'(lbar)/lbar where it would cancel
+        if cross.size:  # one end in the core: the difference quotient, its numerator split at eps (no cancellation)
             a, b, c, e = l0[cross], l1[cross], self.c[cross], self.eps[cross]
-            wide = np.abs(b - a) > 1e-6 * e
-            half = np.where(wide, 0.5 * (b * b - a * a), 1.0)
-            quotient = (self._potential(b, c, e) - self._potential(a, c, e)) / half
-            s[cross] = np.where(wide, quotient, c / np.maximum(0.5 * (a + b), e) ** 3)
+            lo, hi = np.minimum(a, b), np.maximum(a, b)
+            # phi(hi) - phi(lo) = c (hi - e)/(hi e) + c (e - lo)(e + lo)/(2 e^3), over (hi^2 - lo^2)/2
+            s[cross] = ((c * (hi - e) / (hi * e) + c * (e - lo) * (e + lo) / (2.0 * e**3))
+                        / (0.5 * (hi - lo) * (hi + lo)))
             dphi = np.where(b < e, c * b / e**3, c / np.maximum(b, e) ** 2)  # phi'(l_1)
-            s1[cross] = np.where(wide, (dphi - quotient * b) / half, 0.0)
+            s1[cross] = (dphi - s[cross] * b) / (0.5 * (b - a) * (b + a))
         return dm, l1, d1, s, s1
 
     def eval_force_discrete(self, q0, q1, qd, f_out):

@@ -184,7 +184,7 @@ class ForceSpring(ForceTerm):
         w = np.where(lraw >= self.eps, (1.0 - coef) / lbar, 0.0)
         K = scratch(work, "K", (P, 3, 3))
         if mode == "exact":
-            n1 = np.divide(d1, l1[:, None], out=np.zeros_like(d1), where=(l1 >= self.eps)[:, None])
+            n1 = np.divide(d1, l1[:, None], out=np.zeros_like(d1), where=(l1 > 0)[:, None])  # lbar uses l1 as is
             outer(d, n1, out=K)
             K *= (-self.ke * w)[:, None, None]
         else:

@@ -13,9 +13,10 @@ pairs, gravity): ``grad_bar V . (q_1 - q_0) = V(q_1) - V(q_0)`` exactly
 
     E_1 - E_0 = h F_d . (v_0 + v_1)/2 <= 0
 
-so the total energy never grows, whatever the stiffness and step (the implicit midpoint rule,
-``F`` at the midpoint, has no such bound: on stiff nonlinear springs it gains energy and blows up,
-Simo and Tarnow 1992). Pair forces act along the midpoint's pair vector, so linear and angular
+so the total energy never grows, whatever the stiffness and step, once the stage equation is solved
+(to the Newton tolerance; a step whose stage is not solved is reported, see "Retake"). The implicit
+midpoint rule, ``F`` at the midpoint, has no such bound: on stiff nonlinear springs it gains energy
+and blows up (Simo and Tarnow 1992). Pair forces act along the midpoint's pair vector, so linear and angular
 momentum are conserved when the external forces vanish. Second order, symmetric, not L-stable: like
 the trapezoidal rule it does not damp what it cannot resolve, it keeps its energy in those modes.
 
@@ -26,12 +27,18 @@ Newton's matrix is ``M - c^2 K - c D`` with ``K`` and ``D`` the derivatives of t
 respect to the midpoint and the velocity (:meth:`~springsim.forces.ForceTerm.eval_jacobians_discrete`;
 the midpoint force's Jacobians differ from them by terms of order ``k |q_1 - q_0|``, which at animation
 steps on stiff cloth make Newton diverge); the stopping rule (residual and update) is that of implicit
-Euler. The exact ``K`` is not symmetric; the ``symmetric`` and ``spd`` modes (for AMG-CG) are the
-symmetric variants those methods document, so Newton then converges linearly. A step whose stage does not converge is retaken in 2, 4 and 8 equal substeps (the first
-that converges in every substep is kept; the counts are in ``StepStats.extra["retaken"]`` and
-``["substeps"]``); if even 8 fail the step is reported as not ``ok``. Retaking it as implicit Euler, as
-TR-BDF2 does, would not help: its stage coefficient ``c = h`` is twice this one's, so its Newton fails
-first (on the 8 x 8 benchmark cloth at ``h = 0.1 s`` it did, and the unconverged result gained energy).
+Euler. The stopping rule bounds the update of ``w``; ``v_1 = 2 w - v_0`` carries twice its error. The
+exact ``K`` is not symmetric; the ``symmetric`` and ``spd`` modes (for AMG-CG) are the symmetric variants
+the force terms document, with which Newton converges only linearly.
+
+Retake. A step whose stage does not converge, whose matrix lost the masses (ill-conditioned) or whose
+linear solve gave a non-finite solution is retaken in 2, 4 and 8 equal substeps (each halving makes
+``c^2 K`` 4x smaller); the first attempt that succeeds in every substep is kept, the abandoned ones are
+listed in ``StepStats.extra["retaken"]`` and the count in ``["substeps"]``. If even 8 substeps fail, the
+step is reported as not ``ok`` (or the :class:`~springsim.errors.SolverError` is raised). Retaking it as
+implicit Euler, as TR-BDF2 does, would not help: its stage coefficient ``c = h`` is twice this one's, so
+its Newton fails first (on the 8 x 8 benchmark cloth at ``h = 0.1 s`` it did, and the unconverged result
+gained 200 J).
 
 References: J. C. Simo and N. Tarnow, "The discrete energy-momentum method. Conserving algorithms
 for nonlinear elastodynamics", ZAMP 43 (1992) 757-792; O. Gonzalez, "Time integration and discrete
@@ -42,6 +49,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import SolverError
 from ._base import StepStats
 from ._implicit import ImplicitIntegrator
 
@@ -97,13 +105,20 @@ class IntegratorEnergyMomentum(ImplicitIntegrator):
         q, v = state_in.particle_q, state_in.particle_qd
         for level in range(self.max_halvings + 1):
             n = 2 ** level
+            last = level == self.max_halvings
             q1, v1, ok = q, v, True
-            for _ in range(n):
-                q1, v1, ok_k = self._substep(q1, v1, h / n, stats)
-                ok = ok and ok_k
-                if not ok and level < self.max_halvings:
-                    break
-            if ok or level == self.max_halvings:
+            try:
+                for _ in range(n):
+                    q1, v1, ok_k = self._substep(q1, v1, h / n, stats)
+                    ok = ok and ok_k and stats.ok  # stats.ok: also a well-conditioned matrix
+                    if not ok and not last:
+                        break
+            except SolverError as e:  # a non-finite linear solution: smaller substeps, or the error
+                if last:
+                    raise
+                stats.fail(str(e))
+                ok = False
+            if ok or last:
                 break
             stats.retake(f"energy_momentum in {n} substep(s): {'; '.join(stats.failures) or 'failed'}; "
                          f"retaken in {2 * n}")

@@ -67,21 +67,64 @@ def test_discrete_force_does_the_potential_work(name):
         assert abs(work - minus_dv) <= 1e-12 * max(scale, 1.0)
 
 
-@pytest.mark.parametrize("case", ["far", "core", "into_core", "out_of_core", "narrow_crossing"])
+EPS = 0.1
+#: (|d_0|, |d_1|) of a gravitational pair with softening EPS: outside, inside and across its core
+GRAVITATIONAL_CASES = {"far": (0.5, 0.3), "core": (0.05, 0.08), "into_core": (0.3, 0.04), "out_of_core": (0.02, 0.2),
+                       "narrow_crossing": (EPS * (1 - 1e-6), EPS * (1 + 1e-6))}
+
+
+def _gravitational_pair(case):
+    """A softened gravitational pair (c = 2.5, eps = EPS) going from ``|d_0|`` to ``|d_1|`` while turning."""
+    l0, l1 = GRAVITATIONAL_CASES[case]
+    n, t = np.array([0.6, 0.0, 0.8]), np.array([0.0, 1.0, 0.0])
+    term = ForceGravitational(np.array([[0, 1]]), np.array([2.5]), EPS)
+    return term, np.array([np.zeros(3), l0 * n]), np.array([np.zeros(3), l1 * (0.8 * n + 0.6 * t)])
+
+
+@pytest.mark.parametrize("case", sorted(GRAVITATIONAL_CASES))
 def test_gravitational_discrete_gradient_across_the_core(case):
-    """The softened gravitational pair's discrete gradient is exact outside, inside and across its core
-    (within 1e-6 of the work when the pair crosses the core boundary by less than 1e-6 eps)."""
-    eps = 0.1
-    lengths = {"far": (0.5, 0.3), "core": (0.05, 0.08), "into_core": (0.3, 0.04), "out_of_core": (0.02, 0.2),
-               "narrow_crossing": (eps * (1 - 1e-9), eps * (1 + 1e-9))}[case]
-    n = np.array([0.6, 0.0, 0.8])
-    t = np.array([0.0, 1.0, 0.0])
-    term = ForceGravitational(np.array([[0, 1]]), np.array([2.5]), eps)
-    q0 = np.array([np.zeros(3), lengths[0] * n])
-    q1 = np.array([np.zeros(3), lengths[1] * (0.8 * n + 0.6 * t)])  # turns as well
+    """The softened gravitational pair's discrete gradient is exact outside, inside and across its core, also when
+    the crossing is narrow (relative to the potential change, which the check computes with rounding 1e-10)."""
+    term, q0, q1 = _gravitational_pair(case)
     work, minus_dv, scale = _work_identity(term, q0, q1)
-    tol = 1e-6 if case == "narrow_crossing" else 1e-12
-    assert abs(work - minus_dv) <= tol * scale
+    assert abs(work - minus_dv) <= 1e-8 * abs(minus_dv) + 1e-14 * scale
+
+
+def _fd_midpoint(term, q0, q1, qd, h=1e-7):
+    """Central differences of the discrete force with respect to the midpoint (q0 held), (3N, 3N)."""
+    n = q0.shape[0]
+    qm = 0.5 * (q0 + q1)
+    J = np.zeros((3 * n, 3 * n))
+    for k in range(3 * n):  # columns of a tiny test scene
+        e = np.zeros(3 * n)
+        e[k] = h
+        e = e.reshape(n, 3)
+        J[:, k] = (_discrete(term, q0, 2 * (qm + e) - q0, qd) - _discrete(term, q0, 2 * (qm - e) - q0, qd)
+                   ).reshape(-1) / (2 * h)
+    return J
+
+
+@pytest.mark.parametrize("case", ["far", "core", "into_core", "out_of_core"])
+def test_gravitational_discrete_jacobian_across_the_core(case):
+    """The exact discrete Jacobian of a gravitational pair equals central differences in and across the core."""
+    term, q0, q1 = _gravitational_pair(case)
+    J = _dense(term.eval_jacobians_discrete(q0, q1, np.zeros_like(q0), "exact")[0], 2)
+    assert rel_err(J, _fd_midpoint(term, q0, q1, np.zeros_like(q0))) <= FD_RTOL
+
+
+@pytest.mark.parametrize("lengths, rest", [((2e-3, 0.5e-3), 1e-2), ((0.5e-3, 2e-3), 0.0), ((2e-3, 3e-3), 1e-2)],
+                         ids=["end_below_eps", "start_below_eps_zero_rest", "above_eps"])
+def test_spring_discrete_jacobian_near_eps(lengths, rest):
+    """A spring with eps = 1e-3 whose length passes below eps: the discrete force's exact Jacobian equals central
+    differences (the mean length is used unclamped as long as it is above eps)."""
+    from springsim.forces import ForceSpring
+
+    term = ForceSpring(np.array([[0, 1]]), np.array([40.0]), np.array([0.0]), np.array([rest]), eps=1e-3)
+    n, t = np.array([0.6, 0.0, 0.8]), np.array([0.0, 1.0, 0.0])
+    q0 = np.array([np.zeros(3), lengths[0] * n])
+    q1 = np.array([np.zeros(3), lengths[1] * (0.8 * n + 0.6 * t)])
+    J = _dense(term.eval_jacobians_discrete(q0, q1, np.zeros_like(q0), "exact")[0], 2)
+    assert rel_err(J, _fd_midpoint(term, q0, q1, np.zeros_like(q0), h=1e-9)) <= FD_RTOL
 
 
 @pytest.mark.parametrize("mode", JACOBIAN_MODES)
