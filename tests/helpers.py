@@ -133,6 +133,14 @@ def rel_err(a, b, floor: float = 1e-300) -> float:
     return float(np.linalg.norm(np.asarray(a) - np.asarray(b)) / max(np.linalg.norm(b), floor))
 
 
+def assert_matches_fd(J, F, rtol: float) -> None:
+    """An analytic Jacobian ``J`` against finite differences ``F``: both zero, or ``rel_err(J, F) <= rtol``."""
+    if np.linalg.norm(F) == 0.0:
+        assert np.linalg.norm(J) == 0.0
+    else:
+        assert rel_err(J, F) <= rtol
+
+
 def damped_chain(stiffness_scale: float = 1.0):
     """A small smooth problem: 3 free particles hanging from a fixed one by damped springs, with drag.
 

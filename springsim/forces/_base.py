@@ -216,6 +216,14 @@ def pair_geometry(q: np.ndarray, pairs: np.ndarray, eps, work: dict | None = Non
     return d, l, n, near
 
 
+def step_pairs(incidence: "PairIncidence", q0: np.ndarray, q1: np.ndarray):
+    """Pair vectors and lengths at both ends of a step, ``(d0, d1, l0, l1)`` (the energy-momentum forms,
+    :meth:`ForceTerm.eval_force_discrete`)."""
+    d0 = incidence.diff(q0)
+    d1 = incidence.diff(q1)
+    return d0, d1, np.sqrt(np.einsum("ij,ij->i", d0, d0)), np.sqrt(np.einsum("ij,ij->i", d1, d1))
+
+
 def outer(a: np.ndarray, b: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
     """Row-wise outer products, (P, 3) x (P, 3) -> (P, 3, 3) (into ``out`` when given)."""
     return np.multiply(a[:, :, None], b[:, None, :], out=out)

@@ -34,7 +34,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._base import BlockLayout, Blocks, ForceTerm, PairIncidence, active_pairs, outer, pair_geometry, scratch
+from ._base import (BlockLayout, Blocks, ForceTerm, PairIncidence, active_pairs, outer, pair_geometry, scratch,
+                    step_pairs)
 
 __all__ = ["ForceGravitational"]
 
@@ -87,10 +88,7 @@ class ForceGravitational(ForceTerm):
 
     def _discrete_coefficient(self, q0, q1):
         """``(d_m, l_1, d_1, s, ds/dl_1)`` of the discrete gradient ``-s d_m`` (module docstring)."""
-        d0 = self.incidence.diff(q0)
-        d1 = self.incidence.diff(q1)
-        l0 = np.sqrt(np.einsum("ij,ij->i", d0, d0))
-        l1 = np.sqrt(np.einsum("ij,ij->i", d1, d1))
+        d0, d1, l0, l1 = step_pairs(self.incidence, q0, q1)
         dm = 0.5 * (d0 + d1)
         far = (l0 >= self.eps) & (l1 >= self.eps)
         s = self.c / self.eps**3  # both ends in the core: phi is quadratic there

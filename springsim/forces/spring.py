@@ -40,7 +40,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._base import BlockLayout, Blocks, ForceTerm, PairIncidence, active_pairs, outer, pair_geometry, scratch
+from ._base import (BlockLayout, Blocks, ForceTerm, PairIncidence, active_pairs, outer, pair_geometry, scratch,
+                    step_pairs)
 
 __all__ = ["ForceSpring"]
 
@@ -122,10 +123,8 @@ class ForceSpring(ForceTerm):
 
     def eval_force_discrete(self, q0, q1, qd, f_out):
         """Discrete gradient of ``k/2 (l - l0)^2`` (module docstring) plus the damping at the midpoint."""
-        d0 = self.incidence.diff(q0)
-        d = self.incidence.diff(q1)
-        lbar = np.sqrt(np.einsum("ij,ij->i", d0, d0))
-        lbar += np.sqrt(np.einsum("ij,ij->i", d, d))
+        d0, d, lbar, l1 = step_pairs(self.incidence, q0, q1)
+        lbar += l1
         lbar *= 0.5
         d += d0
         d *= 0.5  # the midpoint's pair vector
@@ -171,10 +170,8 @@ class ForceSpring(ForceTerm):
         qm = 0.5 * (q0 + q1)
         d, l, n, near = pair_geometry(qm, self.pairs, self.eps, work)  # midpoint geometry, for the damping
         nn = outer(n, n, out=scratch(work, "nn", (P, 3, 3)))
-        d0 = self.incidence.diff(q0)
-        d1 = self.incidence.diff(q1)
-        l1 = np.sqrt(np.einsum("ij,ij->i", d1, d1))
-        lraw = 0.5 * (np.sqrt(np.einsum("ij,ij->i", d0, d0)) + l1)
+        _, d1, l0, l1 = step_pairs(self.incidence, q0, q1)
+        lraw = 0.5 * (l0 + l1)
         lbar = np.maximum(lraw, self.eps)
         coef = 1.0 - self.l0 / lbar
         if mode == "spd":
