@@ -89,11 +89,14 @@ def plot(rows: list[dict], out_png: Path, target: float) -> bool:
     if plt is None:
         return False
     sizes = sorted({r["n"] for r in rows})
+    # one colour per method in every panel
+    colors = {m: f"C{k}" for k, m in enumerate(sorted({r["method"] for r in rows}))}
     fig, axes = plt.subplots(1, len(sizes), figsize=(5.5 * len(sizes), 4.2), squeeze=False)
     for ax, n in zip(axes[0], sizes):
         for method in sorted({r["method"] for r in rows if r["n"] == n}):
             rs = sorted((r for r in rows if r["n"] == n and r["method"] == method), key=lambda r: r["ke"])
-            line, = ax.plot([r["ke"] for r in rs], [r["cpu_per_frame_s"] for r in rs], "-", label=method)
+            line, = ax.plot([r["ke"] for r in rs], [r["cpu_per_frame_s"] for r in rs], "-", label=method,
+                            color=colors[method])
             for r in rs:
                 ax.plot(r["ke"], r["cpu_per_frame_s"], "o" if r["decidable"] else "x", color=line.get_color(),
                         markerfacecolor=line.get_color() if r["reached"] else "none")
