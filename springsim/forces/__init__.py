@@ -12,7 +12,7 @@ from .spring import ForceSpring
 
 __all__ = ["FORCE_TERMS", "JACOBIAN_MODES", "BlockLayout", "Blocks", "ForceTerm", "ForceDrag",
            "ForceGravitational", "ForceGravity", "ForceSpring", "make_force_terms", "eval_forces",
-           "dense_jacobians"]
+           "eval_forces_discrete", "dense_jacobians"]
 
 #: Registry of force families, in evaluation order.
 FORCE_TERMS: dict[str, type[ForceTerm]] = {
@@ -37,6 +37,15 @@ def eval_forces(terms, q, qd, out: np.ndarray | None = None) -> np.ndarray:
     for t in terms:
         t.eval_force(q, qd, f)
     return f
+
+
+def eval_forces_discrete(terms, q0, q1, qd, out: np.ndarray) -> np.ndarray:
+    """Total energy-momentum force (N, 3) [N] of ``terms`` over the step from ``q0`` to ``q1`` with the midpoint
+    velocity ``qd`` (:meth:`ForceTerm.eval_force_discrete`), into ``out``."""
+    out.fill(0.0)
+    for t in terms:
+        t.eval_force_discrete(q0, q1, qd, out)
+    return out
 
 
 def dense_jacobians(terms, q, qd, mode: str = "exact") -> tuple[np.ndarray, np.ndarray]:

@@ -50,6 +50,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import SolverError
+from ..forces import eval_forces_discrete
 from ._base import StepStats
 from ._implicit import ImplicitIntegrator
 
@@ -75,11 +76,8 @@ class IntegratorEnergyMomentum(ImplicitIntegrator):
     def stage_forces(self, q, v, f):
         if self._q_start is None:  # a stage other than the discrete-gradient one
             return super().stage_forces(q, v, f)
-        q0 = self._q_start
-        q1 = 2.0 * q - q0  # the stage position is the midpoint
-        f.fill(0.0)
-        for t in self.terms:
-            t.eval_force_discrete(q0, q1, v, f)
+        # the stage position is the midpoint: q_1 = 2 q - q_0
+        eval_forces_discrete(self.terms, self._q_start, 2.0 * q - self._q_start, v, f)
 
     def stage_matrix(self, q, v, c, mode):
         if self._q_start is None:
