@@ -126,6 +126,9 @@ def main(argv=None) -> int:
     p.add_argument("--cross-check-max-n", type=int, default=None,
                    help="cross-check the references with solve_ivp at sizes up to this (default: frame-cost's; "
                         "0: never, the floor is then the Verlet levels' difference alone)")
+    p.add_argument("--ref-levels", type=int, default=None,
+                   help="reference levels, each halving the step (default: frame-cost's, 3; 2 for the largest cloths, "
+                        "where the floor is then the two levels' difference)")
     p.add_argument("--quick", action="store_true", help="n = 6, ke 1e3 1e4, two candidates, 20 frames (tests)")
     p.add_argument("--replot", action="store_true", help="only redraw the plot from the CSV of an earlier run")
     p.add_argument("--merge", type=Path, nargs="*", default=[], metavar="CSV",
@@ -151,6 +154,8 @@ def main(argv=None) -> int:
                 "--target", str(a.target), "--budget", str(a.budget), "--out", str(d), "--candidates", *a.candidates]
         if a.cross_check_max_n is not None:
             args += ["--cross-check-max-n", str(a.cross_check_max_n)]
+        if a.ref_levels is not None:
+            args += ["--ref-levels", str(a.ref_levels)]
         if a.quick:
             args += ["--explicit-window", "0.05"]
         frame_cost.main(args)

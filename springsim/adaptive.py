@@ -1,8 +1,8 @@
 """Error-controlled adaptive time stepping with output frames at requested times.
 
-The integrator (``bdf2`` or ``tr_bdf2``: any with ``has_error_estimate``, which sets
-``error_estimate``, a pair ``(err_q, err_v)`` of (N, 3) arrays, after each step) takes a
-step of size ``h``;
+The integrator (``bdf2``, ``tr_bdf2`` or ``energy_momentum``: any with ``has_error_estimate``,
+which sets ``error_estimate``, a pair ``(err_q, err_v)`` of (N, 3) arrays, after each step while
+its ``estimating`` flag is set, as it is during the run) takes a step of size ``h``;
 the driver measures the local error in the weighted RMS norm over free DOFs::
 
     err = sqrt(mean((e_i / (atol + rtol max(|y_i^n|, |y_i^{n+1}|)))^2))
@@ -83,7 +83,7 @@ def simulate_adaptive(model: Model, integrator: str | Integrator, t_end: float, 
     ----------
     model : Model
     integrator : str or Integrator
-        ``"bdf2"``, ``"tr_bdf2"`` or an instance of an integrator with ``has_error_estimate``,
+        ``"bdf2"``, ``"tr_bdf2"``, ``"energy_momentum"`` or an instance of an integrator with ``has_error_estimate``,
         built for ``model``.
     t_end : float
         Final time [s], > 0.
@@ -184,6 +184,8 @@ def simulate_adaptive(model: Model, integrator: str | Integrator, t_end: float, 
     t = 0.0
     just_rejected = False
     attempts = 0
+    estimating = integrator.estimating
+    integrator.estimating = True  # restored when the run ends
     try:
         with single_blas_thread():
             while fi < t_frames.size:
@@ -261,6 +263,8 @@ def simulate_adaptive(model: Model, integrator: str | Integrator, t_end: float, 
                 just_rejected = False
     except KeyboardInterrupt:
         raise run.interrupted(f"t={t:g} s of {t_end:g} s") from None
+    finally:
+        integrator.estimating = estimating
     return run.finish()
 
 

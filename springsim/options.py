@@ -169,8 +169,8 @@ class SolverConfig:
                                  help="relative tolerance of Newton's linear solves: fixed (the solver's rtol, default) "
                                       "or eisenstat-walker (loose far from the root, tightening as Newton converges)")
     time_rtol: float | None = option(None, kind="float", cli="--time-rtol", metavar="R", lo=0.0, strict=True,
-                                     help="adaptive time stepping (bdf2, tr_bdf2): relative local error tolerance (default: "
-                                          "fixed steps; with only time_atol, equal to it)")
+                                     help="adaptive time stepping (bdf2, tr_bdf2, energy_momentum): relative local "
+                                          "error tolerance (default: fixed steps; with only time_atol, equal to it)")
     time_atol: float | None = option(None, kind="float", cli="--time-atol", metavar="A", lo=0.0, strict=True,
                                      help="adaptive time stepping: absolute local error tolerance [m, m/s] (default: "
                                           "time_rtol)")

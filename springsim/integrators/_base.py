@@ -130,8 +130,11 @@ class Integrator(ABC):
     implicit: ClassVar[bool] = False
     #: Formal order of accuracy.
     order: ClassVar[int] = 1
-    #: Whether :meth:`step` sets :attr:`error_estimate` (needed by adaptive stepping).
+    #: Whether :meth:`step` can set :attr:`error_estimate` (needed by adaptive stepping).
     has_error_estimate: ClassVar[bool] = False
+    #: Whether that estimate costs extra work (step doubling), so that a step computes it only while
+    #: :attr:`estimating` is set (adaptive runs set it); estimates that come free are always computed.
+    error_estimate_costs: ClassVar[bool] = False
     #: Largest ratio of consecutive step sizes the method tolerates (adaptive stepping).
     max_step_ratio: ClassVar[float] = float("inf")
     #: Keyword options other integrators take that this one ignores (:func:`make_integrator` warns about them).
@@ -150,6 +153,8 @@ class Integrator(ABC):
         #: ``(err_q [m], err_v [m/s])``, arrays (N, 3): local error estimate of the last step
         #: (integrators with :attr:`has_error_estimate`), else None.
         self.error_estimate: tuple[np.ndarray, np.ndarray] | None = None
+        #: Whether :meth:`step` computes :attr:`error_estimate` (see :attr:`error_estimate_costs`).
+        self.estimating: bool = self.has_error_estimate and not self.error_estimate_costs
 
     def acceleration(self, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
         """``M^-1 F(q, qd)``, zero for fixed particles, shape (N, 3).

@@ -24,7 +24,7 @@ def oscillator_case():
     return model, reference_trajectory(model, [0.0, 1.0]).q[-1]
 
 
-@pytest.mark.parametrize("name", ["bdf2", "tr_bdf2"])
+@pytest.mark.parametrize("name", ["bdf2", "tr_bdf2", "energy_momentum"])
 def test_error_scales_with_tolerance(oscillator_case, name):
     """Tighter time tolerance gives a smaller final error and more steps."""
     model, q_ref = oscillator_case
@@ -38,7 +38,7 @@ def test_error_scales_with_tolerance(oscillator_case, name):
     assert steps[0] < steps[1] < steps[2]
 
 
-@pytest.mark.parametrize("name", ["bdf2", "tr_bdf2"])
+@pytest.mark.parametrize("name", ["bdf2", "tr_bdf2", "energy_momentum"])
 def test_frames_land_at_requested_times(name):
     """Output frames are exactly at 0 and the requested times, including one at t_end."""
     model = _oscillator()

@@ -189,8 +189,8 @@ def test_adaptive_run_and_max_step(capsys, scene_file):
     """``--time-rtol`` runs adaptive steps; ``--max-step`` caps them (and is rejected when not > 0)."""
     import re
 
-    def largest_step(*extra):
-        code, out, _ = _run(capsys, "run", scene_file, "--integrator", "tr_bdf2", "--time-rtol", 1e-3,
+    def largest_step(*extra, integrator="tr_bdf2"):
+        code, out, _ = _run(capsys, "run", scene_file, "--integrator", integrator, "--time-rtol", 1e-3,
                             "--steps", 20, "--dt", 0.05, *extra)
         assert code == 0, out
         lo, hi = map(float, re.search(r"h in \[([^,]+), ([^\]]+)\] s", out).groups())
@@ -200,5 +200,6 @@ def test_adaptive_run_and_max_step(capsys, scene_file):
     free = largest_step()
     assert free > 0.02  # this smooth scene lets the controller grow past the cap tried below
     assert largest_step("--max-step", 0.02) <= 0.02 + 1e-12
+    assert largest_step("--max-step", 0.02, integrator="energy_momentum") <= 0.02 + 1e-12  # step doubling
     code, _, err = _run(capsys, "run", scene_file, "--time-rtol", 1e-3, "--max-step", 0)
     assert code == 2 and "--max-step" in err
