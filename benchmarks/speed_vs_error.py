@@ -15,7 +15,8 @@ rtol 1e-10). Four sweeps:
     every implicit integrator with every solver in :data:`springsim.linsolve.LINEAR_SOLVERS`
     at a ladder of relative tolerances (direct solvers once), at ``h = 1/60`` s;
 ``adaptive``
-    :func:`springsim.adaptive.simulate_adaptive` with ``bdf2`` and ``tr_bdf2`` over a ladder of
+    :func:`springsim.adaptive.simulate_adaptive` with ``bdf2``, ``tr_bdf2`` and ``energy_momentum`` (every
+    integrator with an error estimate) over a ladder of
     time tolerances ``time_rtol`` 1e-2 ... 1e-6 (``time_atol = time_rtol * L``); the row's ``dt``
     is the mean accepted step, ``steps``/``rejected`` the accepted/rejected steps, ``h_min``/``h_max``
     the extreme accepted steps, and Newton/linear iterations count every attempt per accepted step.
@@ -61,6 +62,7 @@ from pathlib import Path
 import numpy as np
 
 from springsim.energy import total_energy
+from springsim.integrators import INTEGRATORS
 
 from .common import (RESULTS_DIR, SCENE_NAMES, benchmark_case, fit_order, markdown_table, position_errors,
                      pyplot, reference_final, save_figure, scene_case, write_csv)
@@ -81,8 +83,8 @@ DT_LADDER = [1 / 30, 1 / 60, 1 / 120, 1 / 240, 1 / 480, 1 / 960, 1 / 1920, 1 / 3
 NEWTON_TOLS = [1e-1, 1e-2, 1e-3, 1e-5, 1e-8]
 SOLVER_RTOLS = [1e-2, 1e-4, 1e-6, 1e-8, 1e-10]
 TIME_RTOLS = [1e-2, 1e-3, 1e-4, 1e-5, 1e-6]
-#: Integrators of the adaptive sweep (those with a local error estimate).
-ADAPTIVE_INTEGRATORS = ("bdf2", "tr_bdf2")
+#: Integrators of the adaptive sweep: every registered one with a local error estimate.
+ADAPTIVE_INTEGRATORS = tuple(name for name, cls in INTEGRATORS.items() if cls.has_error_estimate)
 ALL_SWEEPS = ("dt", "newton", "solver", "adaptive")
 
 #: Bounds of the default run (``--full`` lifts them): smallest time step of the dt ladder
@@ -131,7 +133,7 @@ def _run(case, ref_q, e_ref_drift, integrator: str, dt: float | None, *, sweep: 
     from springsim.driver import simulate
     from springsim.errors import SimulationError, SolverError
     from springsim.forces import make_force_terms
-    from springsim.integrators import INTEGRATORS, make_integrator
+    from springsim.integrators import make_integrator
 
     model = case.model
     adaptive = time_rtol is not None
@@ -223,10 +225,9 @@ def run_case(case, *, dts, newton_tols, solver_rtols, time_rtols=(), solver_dt: 
 
     ``solver_integrators`` limits the solver sweep to these integrators (default: every implicit one);
     ``time_rtols`` is the tolerance ladder of the ``adaptive`` sweep (every integrator of
-    :data:`ADAPTIVE_INTEGRATORS` that is registered).
+    :data:`ADAPTIVE_INTEGRATORS`).
     """
     from springsim.forces import make_force_terms
-    from springsim.integrators import INTEGRATORS
     from springsim.linsolve import LINEAR_SOLVERS
 
     log = log or _print
@@ -274,7 +275,7 @@ def run_case(case, *, dts, newton_tols, solver_rtols, time_rtols=(), solver_dt: 
                     done(_run(case, ref_q, e_ref_drift, name, solver_dt, sweep="solver", method=f"{name}/{sname}",
                               **opts))
     if "adaptive" in sweeps:
-        for name in (n for n in ADAPTIVE_INTEGRATORS if n in INTEGRATORS):
+        for name in ADAPTIVE_INTEGRATORS:
             for tol in time_rtols:
                 done(_run(case, ref_q, e_ref_drift, name, None, sweep="adaptive", method=f"{name} adaptive",
                           time_rtol=tol))
