@@ -123,10 +123,14 @@ def fixed_run(model, name, steps, ref=False, **kw):
 
 
 def adaptive_run(model, name, tol):
+    """Final state, CPU seconds and trajectory of an adaptive run of ``name`` (``NAME/unfiltered``: without
+    the stiff filter of the error estimate)."""
+    name, _, variant = name.partition("/")
+    kw = {"filter_estimates": False} if variant == "unfiltered" else {}
     t0 = time.process_time()
     tr = simulate_adaptive(model, name, T_END, time_rtol=tol, time_atol=tol, on_nonconvergence="ignore",
                            h_max=H_MAX, newton_maxiter=NEWTON_MAXITER, solver=SOLVER["name"],
-                           solver_options={"rtol": SOLVER["rtol"]})
+                           solver_options={"rtol": SOLVER["rtol"]}, **kw)
     return tr.q[-1], tr.qd[-1], time.process_time() - t0, tr
 
 
@@ -366,8 +370,10 @@ def main(argv=None):
     p.add_argument("--linear-rtol", type=float, default=1e-6, help="linear rtol of the method runs (reference: 1e-10)")
     p.add_argument("--skip-h60", action="store_true", help="skip the h = 1/60 table")
     p.add_argument("--h60-methods", nargs="+", default=list(METHODS) + ["trapezoidal"])
-    p.add_argument("--methods", nargs="+", default=list(METHODS), help="fixed-step methods of the sweep")
-    p.add_argument("--adaptive-methods", nargs="*", default=["bdf2", "tr_bdf2"])
+    p.add_argument("--methods", nargs="*", default=list(METHODS),
+                   help="fixed-step methods of the sweep (none: adaptive only)")
+    p.add_argument("--adaptive-methods", nargs="*", default=["bdf2", "tr_bdf2"],
+                   help="adaptive methods of the sweep (NAME/unfiltered: without the stiff filter of the estimate)")
     p.add_argument("--recompute-ref", action="store_true", help="ignore a saved reference")
     p.add_argument("--skip-spring", action="store_true", help="skip the undamped-spring energy table")
     p.add_argument("--newton-maxiter", type=int, default=NEWTON_DEFAULT,

@@ -133,14 +133,16 @@ class Integrator(ABC):
     #: Whether :meth:`step` can set :attr:`error_estimate` (needed by adaptive stepping).
     has_error_estimate: ClassVar[bool] = False
     #: Whether that estimate costs extra work (step doubling), so that a step computes it only while
-    #: :attr:`estimating` is set (adaptive runs set it); estimates that come free are always computed.
+    #: :attr:`estimating` is set (adaptive runs set it); estimates that come free are always computed
+    #: (a filtered one, :meth:`~springsim.integrators.ImplicitIntegrator.filter_estimate`, also costs).
     error_estimate_costs: ClassVar[bool] = False
     #: Largest ratio of consecutive step sizes the method tolerates (adaptive stepping).
     max_step_ratio: ClassVar[float] = float("inf")
     #: Keyword options other integrators take that this one ignores (:func:`make_integrator` warns about them).
     unused_options: ClassVar[frozenset] = frozenset({
         "solver", "jacobian", "newton_tol", "newton_maxiter", "residual_rtol", "on_nonconvergence", "solver_options",
-        "line_search", "min_step", "escalate_jacobian", "escalate_after", "forcing", "forcing_max"})
+        "line_search", "min_step", "escalate_jacobian", "escalate_after", "forcing", "forcing_max",
+        "filter_estimates"})
 
     def __init__(self, model, *, terms=None):
         self.model = model

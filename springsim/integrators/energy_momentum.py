@@ -92,6 +92,8 @@ class IntegratorEnergyMomentum(ImplicitIntegrator):
     order = 2
     has_error_estimate = True
     error_estimate_costs = True
+    unused_options = frozenset({"filter_estimates"})  # the step-doubling estimate needs no filter
+    default_filter_estimates = False
     #: A step whose stage does not converge is retaken in 2, 4, ... 2**max_halvings equal substeps
     max_halvings = 3
 

@@ -17,6 +17,7 @@ __all__ = ["IntegratorImplicitEuler"]
 
 class IntegratorImplicitEuler(ImplicitIntegrator):
     name = "implicit_euler"
+    unused_options = frozenset({"filter_estimates"})  # no error estimate
 
     def step(self, state_in, state_out, dt):
         stats = StepStats(dt)

@@ -36,7 +36,7 @@ class IntegratorLinearizedImplicit(ImplicitIntegrator):
     name = "linearized_implicit"
     # one plain Newton iteration: no stopping rule, line search or escalation
     unused_options = frozenset({"newton_tol", "newton_maxiter", "residual_rtol", "line_search", "min_step",
-                                "escalate_jacobian", "escalate_after", "forcing", "forcing_max"})
+                                "escalate_jacobian", "escalate_after", "forcing", "forcing_max", "filter_estimates"})
 
     def blowup_hint(self) -> str:
         if self.jacobian != "spd":

@@ -30,7 +30,10 @@ Local error estimate (Hosea and Shampine 1996, eq. for TR-BDF2's embedded pair):
 
 with ``f = qd`` for positions and ``f = a`` for velocities; the bracket is ``h^2/2`` times
 the second derivative of ``f``, so ``err = -k h^3 y'''`` (sign: numerical minus exact;
-checked against a Radau reference).
+checked against a Radau reference). As in Hosea and Shampine's implementation, the estimate is
+then filtered through Newton's matrix, ``(I - c J)^-1 err``
+(:meth:`~springsim.integrators.ImplicitIntegrator.filter_estimate`), so that stiff components the
+method damps do not dominate it.
 """
 
 from __future__ import annotations
@@ -54,7 +57,8 @@ class IntegratorTRBDF2(ImplicitIntegrator):
     Attributes
     ----------
     error_estimate : tuple of ndarray (N, 3) or None
-        Local error estimate ``(err_q [m], err_v [m/s])`` of the last step.
+        Local error estimate ``(err_q [m], err_v [m/s])`` of the last step; filtered, it is computed only
+        while ``estimating`` is set (adaptive runs set it).
     """
 
     name = "tr_bdf2"
@@ -81,6 +85,7 @@ class IntegratorTRBDF2(ImplicitIntegrator):
         a1 = (v1 - v_hat2) / c2
         if not (ok1 and ok2):
             q1, v1, _, self.error_estimate = self.retake_implicit_euler(q, v, h, a_n, stats, "tr_bdf2 stages")
+            c2 = h  # the implicit Euler stage's coefficient, for the filter
         else:
             q1[self.fixed] = q[self.fixed]  # a1 q - a2 q_prev rounds: keep fixed particles bit-exact
             a1[self.fixed] = 0.0
@@ -89,6 +94,7 @@ class IntegratorTRBDF2(ImplicitIntegrator):
             w0, wg, w1 = 2.0 * k * h / g, -2.0 * k * h / (g * (1.0 - g)), 2.0 * k * h / (1.0 - g)
             # sign: the estimate approximates (numerical - exact)
             self.error_estimate = (-(w0 * v + wg * v_g + w1 * v1), -(w0 * a_n + wg * a_g + w1 * a1))
+        self.error_estimate = self.finish_estimate(q1, v1, c2, self.error_estimate, stats)
         state_out.particle_q[...] = q1
         state_out.particle_qd[...] = v1
         return self.check_step(stats)
