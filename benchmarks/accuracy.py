@@ -123,10 +123,12 @@ def fixed_run(model, name, steps, ref=False, **kw):
 
 
 def adaptive_run(model, name, tol):
-    """Final state, CPU seconds and trajectory of an adaptive run of ``name`` (``NAME/unfiltered``: without
-    the stiff filter of the error estimate)."""
+    """Final state, CPU seconds and trajectory of an adaptive run of ``name`` (``NAME/filtered``,
+    ``NAME/unfiltered``: with or without the stiff filter of the error estimate; plain ``NAME``: its default)."""
     name, _, variant = name.partition("/")
-    kw = {"filter_estimates": False} if variant == "unfiltered" else {}
+    if variant not in ("", "filtered", "unfiltered"):
+        raise ValueError(f"unknown variant {variant!r} of {name!r} (filtered or unfiltered)")
+    kw = {"filter_estimates": variant == "filtered"} if variant else {}
     t0 = time.process_time()
     tr = simulate_adaptive(model, name, T_END, time_rtol=tol, time_atol=tol, on_nonconvergence="ignore",
                            h_max=H_MAX, newton_maxiter=NEWTON_MAXITER, solver=SOLVER["name"],
@@ -249,7 +251,7 @@ def run_size(n, ref_steps, sweep_steps, tols, sweep=True, only_adaptive=None, h6
             print("  ", sweep[-1], tr.adaptive_stats, flush=True)
         header = ["n", "method", "h_or_tol", "mean_h_s", "rms_err_m", "cpu_per_sim_s", "newton_failures"]
         table(f"n = {n}: adaptive {only_adaptive}", header, sweep)
-        write_csv(f"adaptive_{only_adaptive}_n{n}", header, sweep)
+        write_csv(f"adaptive_{only_adaptive.replace('/', '-')}_n{n}", header, sweep)
         return
     if h60:
         h60_table(model, n, q_ref, v_ref, ref_err, h60_methods or METHODS + ("trapezoidal",))
@@ -373,7 +375,8 @@ def main(argv=None):
     p.add_argument("--methods", nargs="*", default=list(METHODS),
                    help="fixed-step methods of the sweep (none: adaptive only)")
     p.add_argument("--adaptive-methods", nargs="*", default=["bdf2", "tr_bdf2"],
-                   help="adaptive methods of the sweep (NAME/unfiltered: without the stiff filter of the estimate)")
+                   help="adaptive methods of the sweep (NAME/filtered, NAME/unfiltered: with or without the stiff "
+                        "filter of the error estimate)")
     p.add_argument("--recompute-ref", action="store_true", help="ignore a saved reference")
     p.add_argument("--skip-spring", action="store_true", help="skip the undamped-spring energy table")
     p.add_argument("--newton-maxiter", type=int, default=NEWTON_DEFAULT,

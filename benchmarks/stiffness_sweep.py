@@ -127,8 +127,8 @@ def main(argv=None) -> int:
                    help="cross-check the references with solve_ivp at sizes up to this (default: frame-cost's; "
                         "0: never, the floor is then the Verlet levels' difference alone)")
     p.add_argument("--ref-levels", type=int, default=None,
-                   help="reference levels, each halving the step (default: frame-cost's, 3; 2 for the largest cloths, "
-                        "where the floor is then the two levels' difference)")
+                   help="reference levels, each halving the step (default: frame-cost's, 3; with 2, as used for the "
+                        "largest cloths, the floor is the two levels' difference)")
     p.add_argument("--quick", action="store_true", help="n = 6, ke 1e3 1e4, two candidates, 20 frames (tests)")
     p.add_argument("--replot", action="store_true", help="only redraw the plot from the CSV of an earlier run")
     p.add_argument("--merge", type=Path, nargs="*", default=[], metavar="CSV",

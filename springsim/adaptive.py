@@ -208,6 +208,8 @@ def simulate_adaptive(model: Model, integrator: str | Integrator, t_end: float, 
                     info["newton_iterations"] += st.newton_iterations
                     info["linear_iterations"] += st.linear_iterations
                     why = run.problem() or (None if st.ok else "; ".join(st.failures))
+                    if why is None and integrator.error_estimate is None:
+                        why = f"{integrator.name} gave no error estimate for the step"
                 if why is not None:
                     info["rejected"] += 1
                     info["failed_attempts"] += 1
@@ -219,7 +221,7 @@ def simulate_adaptive(model: Model, integrator: str | Integrator, t_end: float, 
                     h = max(h_min, 0.25 * h)
                     just_rejected = True
                     continue
-                assert st is not None and integrator.error_estimate is not None  # a finished, accepted attempt
+                assert integrator.error_estimate is not None  # checked above
                 eq, ev = integrator.error_estimate
                 q0, v0 = run.state.particle_q, run.state.particle_qd
                 q1, v1 = run.scratch.particle_q, run.scratch.particle_qd

@@ -317,7 +317,8 @@ class ImplicitIntegrator(Integrator):
         self._mass_norm = float(np.sqrt(3.0) * np.linalg.norm(model.particle_mass[self.free]))
         self._warm: np.ndarray | None = None
         self._stage_failures: list[str] = []
-        self.filter_estimates = bool(self.default_filter_estimates if filter_estimates is None else filter_estimates)
+        self.filter_estimates = self.has_error_estimate and bool(
+            self.default_filter_estimates if filter_estimates is None else filter_estimates)
         if self.has_error_estimate and self.filter_estimates:
             self.estimating = False  # a filtered estimate costs a solve per step: only while estimating (adaptive)
 

@@ -92,7 +92,8 @@ class IntegratorBDF2(ImplicitIntegrator):
     Attributes
     ----------
     error_estimate : tuple of ndarray (N, 3) or None
-        Local error estimate ``(err_q [m], err_v [m/s])`` of the last step.
+        Local error estimate ``(err_q [m], err_v [m/s])`` of the last step; filtered
+        (``filter_estimates=True``), it is computed only while ``estimating`` is set (adaptive runs set it).
     """
 
     name = "bdf2"

@@ -127,20 +127,22 @@ class IntegratorEnergyMomentum(ImplicitIntegrator):
         return q1, v1, ok
 
     def _doubled(self, q, v, h, stats):
-        """Two steps of ``h/2`` and the error estimate from one of ``h`` (module docstring): ``(q2, v2)``;
-        a failure ends it early (``stats`` says why, :attr:`error_estimate` is None)."""
+        """Two steps of ``h/2``, the result, and the error estimate from one of ``h`` (module docstring):
+        ``(q2, v2)``. Both half steps are always taken; when either fails the full step is skipped and
+        :attr:`error_estimate` stays None (``stats`` says why). The step's statistics cover all three stages
+        (Newton iterations, solves, the largest precision loss); its final Newton norms are the result's."""
         self.error_estimate = None
-        q2, v2, ok = self._substep(q, v, 0.5 * h, stats)
-        if ok and stats.ok:
-            q2, v2, ok = self._substep(q2, v2, 0.5 * h, stats)
+        q2, v2, ok_a = self._substep(q, v, 0.5 * h, stats)
+        q2, v2, ok_b = self._substep(q2, v2, 0.5 * h, stats)
+        if ok_a and ok_b and stats.ok:
+            result = stats.newton_step_norm, stats.residual_norm, stats.residual_ratio
+            q1, v1, ok = self._substep(q, v, h, stats, w0=0.5 * (v + v2))
             if ok and stats.ok:
-                result = stats.newton_step_norm, stats.residual_norm, stats.residual_ratio
-                q1, v1, ok = self._substep(q, v, h, stats, w0=0.5 * (v + v2))
-                if ok and stats.ok:  # the statistics describe the returned result, not the estimate's step
-                    stats.newton_step_norm, stats.residual_norm, stats.residual_ratio = result
-                    self.error_estimate = ((q1 - q2) / 3.0, (v1 - v2) / 3.0)
-                    return q2, v2
-        if stats.ok:  # never accept a step without its estimate
+                stats.newton_step_norm, stats.residual_norm, stats.residual_ratio = result
+                self.error_estimate = ((q1 - q2) / 3.0, (v1 - v2) / 3.0)
+                return q2, v2
+        if stats.ok:  # never a step that passes as ok without its estimate
+            stats.newton_converged = False
             stats.fail("energy_momentum: a stage of the step-doubling estimate did not converge")
         return q2, v2
 

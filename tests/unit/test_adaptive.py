@@ -118,3 +118,34 @@ def test_invalid_input():
         simulate_adaptive(model, "bdf2", 1.0, t_frames=[0.5, 0.2])
     with pytest.raises(SceneError, match="^integrator: adaptive stepping needs"):
         simulate_adaptive(model, "implicit_euler", 1.0)
+
+
+def test_estimating_flag_is_restored_when_the_run_fails():
+    """The adaptive driver turns the integrator's ``estimating`` on for the run and back off even when it raises."""
+    from springsim.errors import SimulationError
+
+    model = _oscillator()
+    integ = make_integrator("energy_momentum", model)
+    assert not integ.estimating
+    with pytest.raises(SimulationError):
+        simulate_adaptive(model, integ, 1.0, time_rtol=1e-3, time_atol=1e-3, max_steps=3)
+    assert not integ.estimating
+
+
+def test_a_step_without_an_estimate_is_a_failed_attempt(monkeypatch):
+    """A step that reports ok but leaves no error estimate is never accepted: it is retried smaller."""
+    model = _oscillator()
+    integ = make_integrator("tr_bdf2", model)
+    real = type(integ).step
+    calls = []
+
+    def step(self, s_in, s_out, dt):
+        st = real(self, s_in, s_out, dt)
+        calls.append(dt)
+        if len(calls) == 1:
+            self.error_estimate = None
+        return st
+
+    monkeypatch.setattr(type(integ), "step", step)
+    tr = simulate_adaptive(model, integ, 0.1, time_rtol=1e-3, time_atol=1e-3, h0=0.02)
+    assert tr.adaptive_stats["failed_attempts"] == 1 and calls[1] == pytest.approx(calls[0] / 4)

@@ -250,6 +250,10 @@ def test_step_doubling_failure_is_reported_without_estimate(monkeypatch):
     integ.estimating = True
     st = integ.step(model.state(), model.state(), 0.02)
     assert not st.ok and integ.error_estimate is None and "substeps" not in st.extra
+    # a failed first half step still completes the step (both halves, no full step for the estimate)
+    calls[:] = [0, 0]  # the next call is the third: the first half step
+    integ.step(model.state(), model.state(), 0.02)
+    assert calls[2:] == [0.01, 0.01] and integ.error_estimate is None
     calls.clear()
     tr = simulate_adaptive(model, integ, 0.05, h0=0.02, time_rtol=1e-3, time_atol=1e-3)
     assert tr.adaptive_stats["failed_attempts"] == 1 and all(s.ok for s in tr.stats)
