@@ -313,13 +313,14 @@ class ImplicitIntegrator(Integrator):
         with phase(f"{self.name}: sparsity pattern of {3 * model.free_count} DOFs", _log, announce=False):
             self.assembler = SystemAssembler(model, self.terms)
         self._mass = model.particle_mass[:, None]
+        self._mass_dofs = np.repeat(model.particle_mass[self.free], 3)  # M as a free DOF vector
         # floor of the residual scale: the residual of a velocity error of newton_tol in every DOF
-        self._mass_norm = float(np.sqrt(3.0) * np.linalg.norm(model.particle_mass[self.free]))
+        self._mass_norm = float(np.linalg.norm(self._mass_dofs))
         self._warm: np.ndarray | None = None
         self._stage_failures: list[str] = []
         self.filter_estimates = self.has_error_estimate and bool(
             self.default_filter_estimates if filter_estimates is None else filter_estimates)
-        if self.has_error_estimate and self.filter_estimates:
+        if self.filter_estimates:
             self.estimating = False  # a filtered estimate costs a solve per step: only while estimating (adaptive)
 
     def reset(self):
@@ -479,7 +480,7 @@ class ImplicitIntegrator(Integrator):
             return err
         asm = self.assembler
         e_q, e_v = asm.gather(err[0]), asm.gather(err[1])
-        m = np.repeat(self.model.particle_mass[self.free], 3)
+        m = self._mass_dofs
         K = asm.assemble(q, v, 1.0, 0.0, self.jacobian)  # M - dF/dq, for the product only
         stats.assembly_s += asm.last_time_s
         rhs = m * e_v + c * (m * e_q - K @ e_q)
