@@ -336,9 +336,9 @@ def pareto_plot(rows: list[dict], case: str, out_png, *, dpi: int = 100) -> bool
     tolerance; crosses: the solver/rtol sweep at h = 1/60 s; thick dash-dotted lines with
     squares (same colour as the integrator's dt ladder): the adaptive integrators over their
     time-tolerance ladder, whose range the legend gives (no labels on the points, so nothing
-    overlaps the curves).
+    overlaps the curves); the other setting of the estimate's stiff filter (``--filter-variants``)
+    dotted with hollow squares.
     """
-    from springsim.integrators import INTEGRATORS
 
     plt = pyplot()
     if plt is None:
@@ -367,8 +367,11 @@ def pareto_plot(rows: list[dict], case: str, out_png, *, dpi: int = 100) -> bool
             else:
                 color = others[(4 * k + k // 5) % 20]
                 k += 1
+            style = dict(styles[sweep])
+            if m.endswith(("filtered", "unfiltered")):  # --filter-variants: the integrator's colour, hollow, dotted
+                style.update(ls=":", mfc="none")
             ax.loglog([r["err_rms"] for r in rr], [r["wall_per_sim_s"] for r in rr], color=color,
-                      label=label, **styles[sweep])
+                      label=label, **style)
     ax.set_xlabel("final position error, RMS / scene size")
     ax.set_ylabel("wall time per simulated second [s]")
     ax.set_title(f"speed vs error: {case} (lower left is better)")
