@@ -253,8 +253,8 @@ def parse_candidate(text: str) -> Candidate:
 
     ``1/h`` must be a whole multiple of the frame rate (60); implicit methods take a registered linear
     solver, explicit ones (and ``verlet``) ``none``; the optional fourth field gives integrator options
-    (``true``/``false`` as booleans, numbers where they parse as numbers, else strings). Errors are one line
-    naming the field.
+    (``true``/``false`` as booleans, numbers where they parse as numbers, else strings; ``solver_X=v`` is the
+    linear solver's option ``X``, e.g. ``solver_reuse_factors=8``). Errors are one line naming the field.
     """
     from springsim.integrators import INTEGRATORS
     from springsim.linsolve import LINEAR_SOLVERS
@@ -322,6 +322,8 @@ class Run:
         cls = INTEGRATORS[self.method]
         opts = {k: v for k, v in self.options.items() if k not in cls.unused_options}
         so = dict(opts.pop("solver_options", {}) or {})
+        for k in [k for k in opts if k.startswith("solver_")]:  # solver_X=v: the linear solver's option X
+            so[k[len("solver_"):]] = opts.pop(k)
         if self.solver in ("direct", "dense"):
             so.pop("rtol", None)
         if "newton_maxiter" in opts and opts["newton_maxiter"] is None:  # the integrator's default, at least 20

@@ -20,7 +20,14 @@ pivots), so every solution is checked:
 
 What is reused across steps is the conversion: the assembler's BSR data reaches
 CSC through one precomputed gather (:meth:`SystemMatrix.tocsc`). SuperLU exposes
-no reusable symbolic factorisation, so each call factors afresh.
+no reusable symbolic factorisation, so each call factors afresh, unless
+``reuse_factors`` is set: then a new matrix of the same shape is first solved with the
+previous call's factors as an approximate inverse, by at most ``reuse_factors`` steps of
+the same iterative refinement (step 2; it converges when ``|I - (LU)^-1 A| < 1``, i.e.
+when the matrix changed little, as between the Newton iterations and the two stages of
+one TR-BDF2 step), and the result is kept only when it reaches ``backward_tol``: the
+guarantee is the same, only the cost differs (``info["reused_factors"]``). Otherwise the
+matrix is factored as above and its factors are kept for the next call.
 """
 
 from __future__ import annotations
@@ -66,6 +73,9 @@ class LinearSolverDirect(LinearSolver):
         :data:`~springsim.linsolve._base.BACKWARD_TOL`).
     refine : int
         Refinement steps allowed per factorisation (default 3).
+    reuse_factors : int
+        Refinement steps allowed with the previous call's factors before factoring afresh (module
+        docstring); 0 (default) factors every matrix.
     rtol, atol, maxiter
         Accepted for a uniform interface; unused (a direct solve is judged by its backward
         error, see :mod:`springsim.linsolve._base`).
@@ -74,15 +84,18 @@ class LinearSolverDirect(LinearSolver):
     name = "direct"
 
     def __init__(self, *, permc_spec: str = "MMD_AT_PLUS_A", backward_tol: float = BACKWARD_TOL, refine: int = 3,
-                 **kw):
+                 reuse_factors: int = 0, **kw):
         super().__init__(**kw)
         if not backward_tol > 0:
             raise ValueError(f"backward_tol must be > 0, got {backward_tol}")
-        if int(refine) != refine or refine < 0:
-            raise ValueError(f"refine must be an integer >= 0, got {refine}")
+        for name, value in (("refine", refine), ("reuse_factors", reuse_factors)):
+            if int(value) != value or value < 0:
+                raise ValueError(f"{name} must be an integer >= 0, got {value}")
         self.permc_spec = permc_spec
         self.backward_tol = float(backward_tol)
         self.refine = int(refine)
+        self.reuse_factors = int(reuse_factors)
+        self._kept = None  # (shape, factors) of the last factorisation, for reuse_factors
 
     def _factor(self, csc, pivoting: bool):
         """SuperLU factors, or the error message when SuperLU finds the matrix exactly singular."""
@@ -100,7 +113,19 @@ class LinearSolverDirect(LinearSolver):
         A_norm = inf_norm(csc)
         setup_s = solve_s = 0.0
         x, eta, failure = np.full_like(b, np.nan), float("inf"), None
-        info: dict = {"refinements": 0, "pivoting": False}
+        info: dict = {"refinements": 0, "pivoting": False, "reused_factors": False}
+        if self.reuse_factors and self._kept is not None and self._kept[0] == csc.shape:
+            t1 = time.perf_counter()
+            lu = self._kept[1]
+            x_try, eta_try, done = refine(csc, lu.solve, b, lu.solve(b), A_norm=A_norm, tol=self.backward_tol,
+                                          steps=self.reuse_factors)
+            solve_s += time.perf_counter() - t1
+            if eta_try <= self.backward_tol:
+                info.update(refinements=done, reused_factors=True)
+                res = relative_residual(csc, x_try, b)
+                setup_s = (time.perf_counter() - t0) - solve_s  # the conversion
+                return LinearSolveResult(x_try, True, 0, res, self.name, setup_s=setup_s, solve_s=solve_s,
+                                         backward_error=eta_try, info=info)
         for pivoting in (False, True):
             t1 = time.perf_counter()
             lu, err = self._factor(csc, pivoting)
@@ -111,6 +136,8 @@ class LinearSolverDirect(LinearSolver):
             else:
                 # ``lu.nnz`` is nnz(L) + nnz(U) without building L and U as sparse matrices
                 info["nnz_LU"] = int(lu.nnz)
+                if self.reuse_factors:
+                    self._kept = (csc.shape, lu)
                 info["pivoting"] = pivoting
                 x_try, eta_try, done = refine(csc, lu.solve, b, lu.solve(b), A_norm=A_norm, tol=self.backward_tol,
                                               steps=self.refine)
