@@ -107,6 +107,10 @@ class LinearSolverDirect(LinearSolver):
         except RuntimeError as e:  # "Factor is exactly singular"
             return None, f"singular matrix ({e})"
 
+    def _refined(self, csc, lu, b, A_norm, steps):
+        """The solution with the factors ``lu`` refined (:func:`refine`) by at most ``steps`` steps."""
+        return refine(csc, lu.solve, b, lu.solve(b), A_norm=A_norm, tol=self.backward_tol, steps=steps)
+
     def _solve(self, A, b, x0):
         t0 = time.perf_counter()
         csc = A.tocsc()
@@ -116,17 +120,12 @@ class LinearSolverDirect(LinearSolver):
         info: dict = {"refinements": 0, "pivoting": False, "reused_factors": False}
         if self.reuse_factors and self._kept is not None and self._kept[0] == csc.shape:
             t1 = time.perf_counter()
-            lu = self._kept[1]
-            x_try, eta_try, done = refine(csc, lu.solve, b, lu.solve(b), A_norm=A_norm, tol=self.backward_tol,
-                                          steps=self.reuse_factors)
+            x_try, eta_try, done = self._refined(csc, self._kept[1], b, A_norm, self.reuse_factors)
             solve_s += time.perf_counter() - t1
             if eta_try <= self.backward_tol:
+                x, eta = x_try, eta_try
                 info.update(refinements=done, reused_factors=True)
-                res = relative_residual(csc, x_try, b)
-                setup_s = (time.perf_counter() - t0) - solve_s  # the conversion
-                return LinearSolveResult(x_try, True, 0, res, self.name, setup_s=setup_s, solve_s=solve_s,
-                                         backward_error=eta_try, info=info)
-        for pivoting in (False, True):
+        for pivoting in (() if info["reused_factors"] else (False, True)):
             t1 = time.perf_counter()
             lu, err = self._factor(csc, pivoting)
             t2 = time.perf_counter()
@@ -139,8 +138,7 @@ class LinearSolverDirect(LinearSolver):
                 if self.reuse_factors:
                     self._kept = (csc.shape, lu)
                 info["pivoting"] = pivoting
-                x_try, eta_try, done = refine(csc, lu.solve, b, lu.solve(b), A_norm=A_norm, tol=self.backward_tol,
-                                              steps=self.refine)
+                x_try, eta_try, done = self._refined(csc, lu, b, A_norm, self.refine)
                 info["refinements"] += done
                 if eta_try < eta:
                     x, eta = x_try, eta_try
