@@ -146,15 +146,9 @@ class IntegratorEnergyMomentum(ImplicitIntegrator):
             stats.fail("energy_momentum: a stage of the step-doubling estimate did not converge")
         return q2, v2
 
-    def step(self, state_in, state_out, dt):
-        stats = StepStats(dt)
-        h = float(dt)
-        q, v = state_in.particle_q, state_in.particle_qd
-        if self.estimating:
-            q1, v1 = self._doubled(q, v, h, stats)
-            state_out.particle_q[...] = q1
-            state_out.particle_qd[...] = v1
-            return self.check_step(stats)
+    def _retaken(self, q, v, h, stats):
+        """One step of ``h``, retaken in 2, 4 and 8 substeps while it fails (module docstring, "Retake"):
+        ``(q1, v1)``."""
         for level in range(self.max_halvings + 1):
             n = 2 ** level
             last = level == self.max_halvings
@@ -176,6 +170,13 @@ class IntegratorEnergyMomentum(ImplicitIntegrator):
                          f"retaken in {2 * n}")
         if n > 1:
             stats.extra["substeps"] = n
+        return q1, v1
+
+    def step(self, state_in, state_out, dt):
+        stats = StepStats(dt)
+        h = float(dt)
+        q, v = state_in.particle_q, state_in.particle_qd
+        q1, v1 = (self._doubled if self.estimating else self._retaken)(q, v, h, stats)
         state_out.particle_q[...] = q1
         state_out.particle_qd[...] = v1
         return self.check_step(stats)
