@@ -288,6 +288,32 @@ def test_direct_reuses_factors_only_to_its_backward_tolerance():
         make_linear_solver("direct", reuse_factors=-1)
 
 
+def test_direct_reuses_the_factors_of_the_same_matrix():
+    """A second solve with the very same assembled matrix (same object, same version) substitutes with the kept
+    factors, to the same backward error and solution as a fresh factorisation; a re-assembly (new version) or a
+    matrix not from an assembler (no identity to key on) is factored afresh."""
+    import scipy.sparse as sp
+
+    rng = np.random.default_rng(6)
+    model = benchmark_cloth(8, kd=2.0)
+    asm = SystemAssembler(model, make_force_terms(model))
+    q, qd = 0.9 * model.particle_q, rng.uniform(-1.0, 1.0, model.particle_q.shape)
+    h = 1.0 / 60.0
+    solver = make_linear_solver("direct")
+    A = asm.assemble(q, qd, h * h, h, "exact")
+    first = solver.solve(A, rng.standard_normal(3 * model.free_count))
+    assert not first.info["same_matrix"] and "nnz_LU" in first.info
+    b = rng.standard_normal(3 * model.free_count)
+    again, ref = solver.solve(A, b), make_linear_solver("direct").solve(A, b)
+    assert again.info["same_matrix"] and "nnz_LU" not in again.info
+    assert again.converged and again.backward_error <= solver.backward_tol
+    assert np.linalg.norm(again.x - ref.x) <= 1e-10 * np.linalg.norm(ref.x)
+    A = asm.assemble(q, qd, h * h, h, "exact")  # same values, new version: factored afresh
+    assert not solver.solve(A, b).info["same_matrix"]
+    plain = sp.identity(6, format="csr") * 2.0
+    assert [solver.solve(plain, np.ones(6)).info["same_matrix"] for _ in range(2)] == [False, False]
+
+
 def test_direct_factor_reuse_keeps_the_trajectory():
     """TR-BDF2 on the 8 x 8 cloth with reused factors: every solve meets the same backward error, so 30 steps at
     1/60 s follow the plain path's trajectory to 1e-9 (relative) with the same Newton iterations."""

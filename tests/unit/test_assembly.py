@@ -151,6 +151,23 @@ def test_matrix_object_and_pattern_are_reused():
     assert not np.array_equal(A2.toarray(), first)
 
 
+@pytest.mark.parametrize("mode", JACOBIAN_MODES)
+def test_second_matrix_from_the_same_jacobians(mode):
+    """``also`` fills a second matrix from the same Jacobian evaluation: bit-identical to assembling it on its own,
+    with the first unchanged; each matrix keeps its own version."""
+    rng = np.random.default_rng(918)
+    model = random_scene(rng)
+    asm = _assembler(model)
+    q, qd = _state(model, rng)
+    K = asm.new_matrix()
+    assert K.pattern is asm.pattern and K is not asm.matrix
+    A = asm.assemble(q, qd, 1e-4, 1e-2, mode, also=(1.0, 0.0, K))
+    first, second = A.toarray(), K.toarray()
+    assert (A.version, K.version) == (1, 1) and K.mode == mode and K.symmetric == A.symmetric
+    np.testing.assert_array_equal(second, asm.assemble(q, qd, 1.0, 0.0, mode).toarray())
+    np.testing.assert_array_equal(first, asm.assemble(q, qd, 1e-4, 1e-2, mode).toarray())
+
+
 def test_assemble_rejects_unknown_mode():
     """An unknown Jacobian mode is an error, not a silent default."""
     model = _chain()
