@@ -12,6 +12,7 @@ terms, written into the data array of a BSR matrix whose pattern never changes.
 
 from __future__ import annotations
 
+import itertools
 import time
 from dataclasses import dataclass, field
 
@@ -41,7 +42,8 @@ class SystemMatrix:
         Free-particle positions at which the Jacobians were evaluated (for AMG's
         rigid-body near-null space).
     version : int
-        Increments on every assembly (solvers key their caches on pattern + version).
+        A new number on every assembly, never shared with another matrix (solvers key their caches on it: two
+        matrices of one pattern, :meth:`SystemAssembler.new_matrix`, never pass for each other).
     """
 
     bsr: sp.bsr_matrix
@@ -82,6 +84,10 @@ class SystemMatrix:
 
     def __matmul__(self, x):
         return self.bsr @ x
+
+
+#: Source of :attr:`SystemMatrix.version` numbers, unique over the process.
+_VERSIONS = itertools.count(1)
 
 
 try:  # scipy's compiled CSR kernel ``Y += A @ X`` (private; absent -> the public product below)
@@ -210,6 +216,8 @@ class SystemAssembler:
         """
         if mode not in JACOBIAN_MODES:
             raise ValueError(f"jacobian mode must be one of {', '.join(JACOBIAN_MODES)}, got {mode!r}")
+        if also is not None and (also[2].pattern is not self.pattern or also[2] is self.matrix):
+            raise ValueError("also: the matrix must come from this assembler's new_matrix()")
         t0 = time.perf_counter()
         jacobians = {}
         for term in self.terms:
@@ -233,7 +241,7 @@ class SystemAssembler:
             m.mode = mode
             m.symmetric = symmetric
             m.positions = q[self.free]
-            m.version += 1
+            m.version = next(_VERSIONS)
         self.last_time_s = time.perf_counter() - t0
         return self.matrix
 

@@ -17,8 +17,12 @@ L-stable (``R(inf) = 0``; A-stable for ``gamma >= 1/4``). Verwer et al. take ``g
 ``R >= 0`` on the negative axis, and so does this module. The other root, TR-BDF2's ``1 - 1/sqrt(2)``, has a
 smaller error constant (5 ... 10 times smaller errors on the 5 x 5 benchmark cloth at ke = 1e3), but its stage
 point ``y_n + k1`` overshoots stiff components by ``1 - 1/gamma = -2.4`` and the stiff springs' nonlinearity then
-feeds the second stage: the 32 x 32 benchmark cloth blew up after 66 steps of 1/240 s. With ``1 + 1/sqrt(2)``
-the stage point keeps ``0.41`` of a stiff component and the same run is stable.
+feeds the second stage. With ``1 + 1/sqrt(2)`` the stage point keeps ``0.41`` of a stiff component: an undamped
+1e8 N/m spring on 1 kg at h = 0.1 s (a hard case of ``tests/verification/test_hard_cases.py``) keeps its energy
+with it and gains energy with the other root (blowing up with the ``exact`` Jacobian), and so does the 32 x 32 benchmark cloth at h = 1/240 s with the ``spd``
+Jacobian (stable over 1.2 s against a blow-up after 66 steps). With the ``exact`` Jacobian both blow up on that
+cloth at 1/240 s; at 1/960 s the other root is 1.8 cm off against 3.5 cm (BENCHMARKS.md): robustness costs
+accuracy here.
 
 Where it stands (BENCHMARKS.md, "ROS2"): a step costs about what a linearized implicit Euler step costs, but on
 the stiff benchmark cloth the method is far from its asymptotic regime (stage order 1, the usual order reduction
@@ -47,7 +51,8 @@ Linear solves are checked: a solve that missed its criterion fails the step (not
 linearized implicit Euler), a non-finite one ends it with :class:`~springsim.errors.SolverError`. Energy
 caveat: nothing corrects the linearisation, so on stiff cloth at large steps a step can gain energy with either
 Jacobian mode (a ke = 1e7 cloth at h = 1/30 s, the benchmark cloth at h = 0.1 s: the drivers stop with the
-energy-bound error; pinned in ``tests/verification/test_hard_cases.py``). Use a Newton method there.
+energy-bound error; pinned in ``tests/verification/test_rosenbrock.py`` and ``test_hard_cases.py``). Use a Newton
+method there.
 """
 
 from __future__ import annotations
@@ -129,28 +134,29 @@ class IntegratorROS2(ImplicitIntegrator):
         failures: list[str] = []
         vf = asm.gather(v)
         eval_forces(self.terms, q, v, out=self._f0)
-        # stage 1: r = h f(y_n)
-        k1q, k1v = self._solve_w(A, h * vf, h * asm.gather(self._f0), c, stats, failures, warm=0)
-        # stage 2: r = h f(y_n + k1) - 2 k1
-        q_s, v_s = q.copy(), v.copy()
-        asm.scatter_add(q_s, k1q)
-        asm.scatter_add(v_s, k1v)
-        eval_forces(self.terms, q_s, v_s, out=self._f1)
-        k2q, k2v = self._solve_w(A, h * (vf + k1v) - 2.0 * k1q, h * asm.gather(self._f1) - 2.0 * m * k1v, c, stats,
-                                 failures, warm=1)
-        dv = 1.5 * k1v + 0.5 * k2v
-        q1, v1 = q.copy(), v.copy()
-        asm.scatter_add(q1, 1.5 * k1q + 0.5 * k2q)
-        asm.scatter_add(v1, dv)
-        report_stage(stats, converge=False, converged=True, failed=failures, maxiter=1, step=float(np.linalg.norm(dv)),
-                     rnorm=float("nan"), ratio=float("nan"), newton_tol=self.newton_tol,
-                     residual_rtol=self.residual_rtol)
-        self.error_estimate = None
-        if self.estimating or not self.filter_estimates:
-            e_q, e_v = -0.5 * (k1q + k2q), -0.5 * (k1v + k2v)
-            if self.filter_estimates and stats.ok:
-                e_q, e_v = self._filtered(A, e_q, e_v, c, stats)
-            self.error_estimate = (self._full(e_q), self._full(e_v))
+        with self.solver.repeated_solves():  # both stages and the filter solve with A: factored once
+            # stage 1: r = h f(y_n)
+            k1q, k1v = self._solve_w(A, h * vf, h * asm.gather(self._f0), c, stats, failures, warm=0)
+            # stage 2: r = h f(y_n + k1) - 2 k1
+            q_s, v_s = q.copy(), v.copy()
+            asm.scatter_add(q_s, k1q)
+            asm.scatter_add(v_s, k1v)
+            eval_forces(self.terms, q_s, v_s, out=self._f1)
+            k2q, k2v = self._solve_w(A, h * (vf + k1v) - 2.0 * k1q, h * asm.gather(self._f1) - 2.0 * m * k1v, c,
+                                     stats, failures, warm=1)
+            q1, v1 = q.copy(), np.zeros_like(v)  # fixed particles: at rest where they are
+            asm.scatter_add(q1, 1.5 * k1q + 0.5 * k2q)
+            asm.scatter_add(v1, vf + 1.5 * k1v + 0.5 * k2v)
+            # no Newton update to report (0.0, as for explicit methods) and no residual (NaN)
+            report_stage(stats, converge=False, converged=True, failed=failures, maxiter=1, step=0.0,
+                         rnorm=float("nan"), ratio=float("nan"), newton_tol=self.newton_tol,
+                         residual_rtol=self.residual_rtol)
+            self.error_estimate = None
+            if self.estimating:  # set by default when the estimate is free (unfiltered), else by adaptive runs
+                e_q, e_v = -0.5 * (k1q + k2q), -0.5 * (k1v + k2v)
+                if self.filter_estimates and stats.ok:
+                    e_q, e_v = self._filtered(A, e_q, e_v, c, stats)
+                self.error_estimate = (self._full(e_q), self._full(e_v))
         state_out.particle_q[...] = q1
         state_out.particle_qd[...] = v1
         return self.check_step(stats)

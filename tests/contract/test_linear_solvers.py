@@ -289,9 +289,10 @@ def test_direct_reuses_factors_only_to_its_backward_tolerance():
 
 
 def test_direct_reuses_the_factors_of_the_same_matrix():
-    """A second solve with the very same assembled matrix (same object, same version) substitutes with the kept
-    factors, to the same backward error and solution as a fresh factorisation; a re-assembly (new version) or a
-    matrix not from an assembler (no identity to key on) is factored afresh."""
+    """Inside ``repeated_solves()`` a further solve with the very same assembled matrix (same object, same version)
+    substitutes with the kept factors, to the same backward error and solution as a fresh factorisation; a
+    re-assembly (new version), a second matrix of the same pattern or a matrix not from an assembler is factored
+    afresh, and the factors are dropped when the context ends (outside it nothing is kept)."""
     import scipy.sparse as sp
 
     rng = np.random.default_rng(6)
@@ -299,19 +300,26 @@ def test_direct_reuses_the_factors_of_the_same_matrix():
     asm = SystemAssembler(model, make_force_terms(model))
     q, qd = 0.9 * model.particle_q, rng.uniform(-1.0, 1.0, model.particle_q.shape)
     h = 1.0 / 60.0
+    n = 3 * model.free_count
     solver = make_linear_solver("direct")
     A = asm.assemble(q, qd, h * h, h, "exact")
-    first = solver.solve(A, rng.standard_normal(3 * model.free_count))
-    assert not first.info["same_matrix"] and "nnz_LU" in first.info
-    b = rng.standard_normal(3 * model.free_count)
-    again, ref = solver.solve(A, b), make_linear_solver("direct").solve(A, b)
-    assert again.info["same_matrix"] and "nnz_LU" not in again.info
-    assert again.converged and again.backward_error <= solver.backward_tol
-    assert np.linalg.norm(again.x - ref.x) <= 1e-10 * np.linalg.norm(ref.x)
-    A = asm.assemble(q, qd, h * h, h, "exact")  # same values, new version: factored afresh
+    b = rng.standard_normal(n)
+    assert [solver.solve(A, b).info["same_matrix"] for _ in range(2)] == [False, False]  # nothing kept outside
+    with solver.repeated_solves():
+        first = solver.solve(A, rng.standard_normal(n))
+        again, ref = solver.solve(A, b), make_linear_solver("direct").solve(A, b)
+        assert not first.info["same_matrix"] and again.info["same_matrix"]
+        assert again.info["nnz_LU"] == first.info["nnz_LU"] and again.info["pivoting"] == first.info["pivoting"]
+        assert again.converged and again.backward_error <= solver.backward_tol
+        assert np.linalg.norm(again.x - ref.x) <= 1e-10 * np.linalg.norm(ref.x)
+        K = asm.new_matrix()
+        A = asm.assemble(q, qd, h * h, h, "exact", also=(h * h, h, K))  # same values, new versions
+        assert not solver.solve(K, b).info["same_matrix"] and not solver.solve(A, b).info["same_matrix"]
+        plain = sp.identity(6, format="csr") * 2.0
+        assert [solver.solve(plain, np.ones(6)).info["same_matrix"] for _ in range(2)] == [False, False]
+        solver.solve(A, b)
+    assert solver._kept is None
     assert not solver.solve(A, b).info["same_matrix"]
-    plain = sp.identity(6, format="csr") * 2.0
-    assert [solver.solve(plain, np.ones(6)).info["same_matrix"] for _ in range(2)] == [False, False]
 
 
 def test_direct_factor_reuse_keeps_the_trajectory():
