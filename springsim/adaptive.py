@@ -1,6 +1,6 @@
 """Error-controlled adaptive time stepping with output frames at requested times.
 
-The integrator (``bdf2``, ``tr_bdf2``, ``energy_momentum`` or ``ros2``: any with ``has_error_estimate``,
+The integrator (``bdf2``, ``tr_bdf2`` or ``energy_momentum``: any with ``has_error_estimate``,
 which sets ``error_estimate``, a pair ``(err_q, err_v)`` of (N, 3) arrays, after each step while
 its ``estimating`` flag is set, as it is during the run) takes a step of size ``h``;
 the driver measures the local error in the weighted RMS norm over free DOFs::
@@ -13,11 +13,9 @@ the position error alone under-reports the velocity error that later becomes pos
 A step is accepted when ``err <= 1`` and the
 next step is::
 
-    h_new = h min(grow, max(shrink, safety err^(-1/(p+1))))
+    h_new = h min(grow, max(shrink, safety err^(-1/(p+1))))        p = integrator order (2)
 
-with ``p`` the order of the solution the estimate measures (``estimate_order``: 1 for ROS2's
-embedded first-order solution; otherwise the integrator's order, 2),
-``safety = 0.9``, ``grow = 4`` (2 for BDF2, whose variable-step form is zero-stable
+with ``safety = 0.9``, ``grow = 4`` (2 for BDF2, whose variable-step form is zero-stable
 only for step ratios below 1 + sqrt(2); 1 right after a rejection), ``shrink = 0.2``,
 clipped to ``[h_min, h_max]``. A rejected step is retried from the same state (the
 multistep history is reused, see :class:`~springsim.integrators.bdf2.StepHistory`).
@@ -173,7 +171,7 @@ def simulate_adaptive(model: Model, integrator: str | Integrator, t_end: float, 
                                         f"got {getattr(integrator, 'name', integrator)!r}")
     integrator.reset()
     grow = min(grow, integrator.max_step_ratio)
-    expo = -1.0 / ((integrator.estimate_order or integrator.order) + 1)
+    expo = -1.0 / (integrator.order + 1)
     free = model.free_particles
     fixed = model.particle_fixed
 

@@ -12,7 +12,6 @@ terms, written into the data array of a BSR matrix whose pattern never changes.
 
 from __future__ import annotations
 
-import itertools
 import time
 from dataclasses import dataclass, field
 
@@ -42,8 +41,7 @@ class SystemMatrix:
         Free-particle positions at which the Jacobians were evaluated (for AMG's
         rigid-body near-null space).
     version : int
-        A new number on every assembly, never shared with another matrix (solvers key their caches on it: two
-        matrices of one pattern, :meth:`SystemAssembler.new_matrix`, never pass for each other).
+        Increments on every assembly (solvers key their caches on pattern + version).
     """
 
     bsr: sp.bsr_matrix
@@ -84,10 +82,6 @@ class SystemMatrix:
 
     def __matmul__(self, x):
         return self.bsr @ x
-
-
-#: Source of :attr:`SystemMatrix.version` numbers, unique over the process.
-_VERSIONS = itertools.count(1)
 
 
 try:  # scipy's compiled CSR kernel ``Y += A @ X`` (private; absent -> the public product below)
@@ -192,12 +186,8 @@ class SystemAssembler:
         D = m.bsr.data[self.pattern.diagonal_positions].reshape(-1, 9)
         return float(np.finfo(np.float64).eps * (np.abs(D).max(axis=1) / self._free_mass).max())
 
-    def new_matrix(self) -> SystemMatrix:
-        """A second matrix with this assembler's pattern, for :meth:`assemble`'s ``also``."""
-        return SystemMatrix(self.pattern.empty_bsr(), self.pattern)
-
     def assemble(self, q: np.ndarray, qd: np.ndarray, a: float, b: float, mode: str = "exact", *,
-                 q_start: np.ndarray | None = None, also: tuple | None = None) -> SystemMatrix:
+                 q_start: np.ndarray | None = None) -> SystemMatrix:
         """Fill and return :attr:`matrix` = ``M - a dF/dq - b dF/dqd`` at ``(q, qd)``.
 
         Parameters
@@ -210,40 +200,36 @@ class SystemAssembler:
         q_start : ndarray (N, 3), optional
             With it, ``F`` is the energy-momentum force over the step from ``q_start`` to ``2 q - q_start``
             and ``q`` its midpoint (:meth:`~springsim.forces.ForceTerm.eval_jacobians_discrete`).
-        also : (a2, b2, SystemMatrix), optional
-            Fill this matrix (from :meth:`new_matrix`) with ``M - a2 dF/dq - b2 dF/dqd`` from the same
-            Jacobian evaluation: a second scatter, no second evaluation.
         """
         if mode not in JACOBIAN_MODES:
             raise ValueError(f"jacobian mode must be one of {', '.join(JACOBIAN_MODES)}, got {mode!r}")
-        if also is not None and (also[2].pattern is not self.pattern or also[2] is self.matrix):
-            raise ValueError("also: the matrix must come from this assembler's new_matrix()")
         t0 = time.perf_counter()
-        jacobians = {}
+        V = self._values
         for term in self.terms:
+            jq, jqd = (None, None)
             if term.layout_q is not None or term.layout_qd is not None:
                 if q_start is None:
-                    jacobians[id(term)] = term.eval_jacobians(q, qd, mode, work=self._work[id(term)])
+                    jq, jqd = term.eval_jacobians(q, qd, mode, work=self._work[id(term)])
                 else:
-                    jacobians[id(term)] = term.eval_jacobians_discrete(q_start, 2.0 * q - q_start, qd, mode,
-                                                                       work=self._work[id(term)])
-        symmetric = all(t.jacobian_symmetric(mode) if q_start is None else t.jacobian_symmetric_discrete(mode)
-                        for t in self.terms)
-        for ca, cb, m in ((a, b, self.matrix),) + ((also,) if also is not None else ()):
-            V = self._values
+                    jq, jqd = term.eval_jacobians_discrete(q_start, 2.0 * q - q_start, qd, mode,
+                                                           work=self._work[id(term)])
             for src_term, which, off, cnt in self._sources:
-                blocks = jacobians[id(src_term)][0 if which == "q" else 1]
-                np.multiply(blocks.values, -(ca if which == "q" else cb), out=V[off:off + cnt])
-            data = m.bsr.data
-            data[...] = self._mass
-            if self.value_count:
-                _scatter_add(self._scatter, V.reshape(-1, 9), data.reshape(-1, 9))
-            m.mode = mode
-            m.symmetric = symmetric
-            m.positions = q[self.free]
-            m.version = next(_VERSIONS)
+                if src_term is not term:
+                    continue
+                blocks = jq if which == "q" else jqd
+                np.multiply(blocks.values, -(a if which == "q" else b), out=V[off:off + cnt])
+        data = self.matrix.bsr.data
+        data[...] = self._mass
+        if self.value_count:
+            _scatter_add(self._scatter, V.reshape(-1, 9), data.reshape(-1, 9))
+        m = self.matrix
+        m.mode = mode
+        m.symmetric = all(t.jacobian_symmetric(mode) if q_start is None else t.jacobian_symmetric_discrete(mode)
+                          for t in self.terms)
+        m.positions = q[self.free]
+        m.version += 1
         self.last_time_s = time.perf_counter() - t0
-        return self.matrix
+        return m
 
     # -- helpers to move between full (N, 3) arrays and free DOF vectors -------------------
     def gather(self, x: np.ndarray) -> np.ndarray:

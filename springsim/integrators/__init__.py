@@ -17,13 +17,12 @@ from .symplectic_euler import IntegratorSymplecticEuler
 from .bdf2 import IntegratorBDF2
 from .tr_bdf2 import IntegratorTRBDF2
 from .energy_momentum import IntegratorEnergyMomentum
-from .rosenbrock import IntegratorROS2
 
 __all__ = ["INTEGRATORS", "Integrator", "ImplicitIntegrator", "StepStats", "PRECISION_LOSS_LIMIT", "ConvergenceWarning",
            "NewtonConvergenceWarning",
            "IntegratorExplicitEuler", "IntegratorSymplecticEuler", "IntegratorMidpoint",
            "IntegratorLinearizedImplicit", "IntegratorImplicitEuler", "IntegratorBDF2", "IntegratorTRBDF2",
-           "IntegratorEnergyMomentum", "IntegratorROS2", "make_integrator", "integrator_class"]
+           "IntegratorEnergyMomentum", "make_integrator", "integrator_class"]
 
 #: Registry: YAML/CLI name -> class.
 INTEGRATORS: dict[str, type[Integrator]] = {
@@ -35,7 +34,6 @@ INTEGRATORS: dict[str, type[Integrator]] = {
     "bdf2": IntegratorBDF2,
     "tr_bdf2": IntegratorTRBDF2,
     "energy_momentum": IntegratorEnergyMomentum,
-    "ros2": IntegratorROS2,
 }
 
 

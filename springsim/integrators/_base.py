@@ -130,9 +130,6 @@ class Integrator(ABC):
     implicit: ClassVar[bool] = False
     #: Formal order of accuracy.
     order: ClassVar[int] = 1
-    #: Order of the solution whose local error :attr:`error_estimate` measures (``O(h^(p+1))``), which sets the
-    #: step-size controller's exponent; None: :attr:`order` (an estimate of the method's own error).
-    estimate_order: ClassVar[int | None] = None
     #: Whether :meth:`step` can set :attr:`error_estimate` (needed by adaptive stepping).
     has_error_estimate: ClassVar[bool] = False
     #: Whether that estimate costs extra work (step doubling), so that a step computes it only while

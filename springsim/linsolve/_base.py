@@ -25,7 +25,6 @@ solution; when a fallback solver answered, ``fallback`` says why the primary one
 
 from __future__ import annotations
 
-import contextlib
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from typing import ClassVar
@@ -175,8 +174,6 @@ class LinearSolver(ABC):
     """
 
     name: ClassVar[str]
-    #: Depth of :meth:`repeated_solves` contexts around the current solve.
-    _holding: int = 0
     #: True for solvers that need a symmetric positive definite matrix (CG family);
     #: integrators then default to the ``spd`` Jacobian mode.
     needs_spd: bool = False
@@ -216,23 +213,6 @@ class LinearSolver(ABC):
                 return self._solve(A, b, x0)
         finally:
             self.rtol = saved
-
-    @contextlib.contextmanager
-    def repeated_solves(self):
-        """A context for several solves with one assembled matrix (the stages of a Rosenbrock step): inside it a
-        solver keeps what it set up for a matrix (the direct solver its factors) for further solves with that
-        matrix, and lets it go when the context ends. Solvers that keep their setup anyway (AMG hierarchies,
-        reused for the same :attr:`~springsim.assembly.SystemMatrix.version`) need nothing from it."""
-        self._holding += 1
-        try:
-            yield self
-        finally:
-            self._holding -= 1
-            if not self._holding:
-                self.release()
-
-    def release(self) -> None:
-        """Let go of what :meth:`repeated_solves` kept (nothing here; the direct solver drops its factors)."""
 
     @abstractmethod
     def _solve(self, A, b: np.ndarray, x0: np.ndarray | None) -> LinearSolveResult:

@@ -20,13 +20,8 @@ pivots), so every solution is checked:
 
 What is reused across steps is the conversion: the assembler's BSR data reaches
 CSC through one precomputed gather (:meth:`SystemMatrix.tocsc`). SuperLU exposes
-no reusable symbolic factorisation, so each new matrix is factored afresh. Inside
-:meth:`~springsim.linsolve.LinearSolver.repeated_solves` (the stages of a Rosenbrock step) the
-factors are kept: a further solve with the very same assembled matrix (the same
-:class:`~springsim.assembly.SystemMatrix` at the same ``version``) only substitutes and refines
-(``info["same_matrix"]``); they are dropped when the context ends. Outside it nothing is kept
-between calls (at n = 128 the factors of a cloth's matrix take about 250 MB). When
-``reuse_factors`` is set, then a new matrix of the same shape is first solved with the
+no reusable symbolic factorisation, so each call factors afresh, unless
+``reuse_factors`` is set: then a new matrix of the same shape is first solved with the
 previous call's factors as an approximate inverse, by at most ``reuse_factors`` steps of
 the same iterative refinement (step 2; it converges when ``|I - (LU)^-1 A| < 1``, i.e.
 when the matrix changed little, as between the Newton iterations and the two stages of
@@ -100,12 +95,7 @@ class LinearSolverDirect(LinearSolver):
         self.backward_tol = float(backward_tol)
         self.refine = int(refine)
         self.reuse_factors = int(reuse_factors)
-        self._kept = None  # (matrix, version, shape, factors, pivoting) of the last factorisation, when kept
-
-    def release(self) -> None:
-        """Drop the kept factors (unless ``reuse_factors`` wants them for the next matrix)."""
-        if not self.reuse_factors:
-            self._kept = None
+        self._kept = None  # (shape, factors) of the last factorisation, for reuse_factors
 
     def _factor(self, csc, pivoting: bool):
         """SuperLU factors, or the error message when SuperLU finds the matrix exactly singular."""
@@ -127,22 +117,15 @@ class LinearSolverDirect(LinearSolver):
         A_norm = inf_norm(csc)
         setup_s = solve_s = 0.0
         x, eta, failure = np.full_like(b, np.nan), float("inf"), None
-        info: dict = {"refinements": 0, "pivoting": False, "reused_factors": False, "same_matrix": False}
-        kept = self._kept
-        same = kept is not None and A.pattern is not None and kept[0] is A and kept[1] == A.version
-        if kept is not None and (same or (self.reuse_factors and kept[2] == csc.shape)):
+        info: dict = {"refinements": 0, "pivoting": False, "reused_factors": False}
+        if self.reuse_factors and self._kept is not None and self._kept[0] == csc.shape:
             t1 = time.perf_counter()
-            x_try, eta_try, done = self._refined(csc, kept[3], b, A_norm, self.refine if same else self.reuse_factors)
+            x_try, eta_try, done = self._refined(csc, self._kept[1], b, A_norm, self.reuse_factors)
             solve_s += time.perf_counter() - t1
             if eta_try <= self.backward_tol:
                 x, eta = x_try, eta_try
-                info.update(refinements=done, reused_factors=not same, same_matrix=same)
-                if same:
-                    info.update(pivoting=kept[4], nnz_LU=int(kept[3].nnz))
-        factor = not (info["reused_factors"] or info["same_matrix"])
-        if factor:
-            kept = self._kept = None  # only one set of factors alive at the peak
-        for pivoting in ((False, True) if factor else ()):
+                info.update(refinements=done, reused_factors=True)
+        for pivoting in (() if info["reused_factors"] else (False, True)):
             t1 = time.perf_counter()
             lu, err = self._factor(csc, pivoting)
             t2 = time.perf_counter()
@@ -152,8 +135,8 @@ class LinearSolverDirect(LinearSolver):
             else:
                 # ``lu.nnz`` is nnz(L) + nnz(U) without building L and U as sparse matrices
                 info["nnz_LU"] = int(lu.nnz)
-                if self.reuse_factors or self._holding:
-                    self._kept = (A, A.version, csc.shape, lu, pivoting)
+                if self.reuse_factors:
+                    self._kept = (csc.shape, lu)
                 info["pivoting"] = pivoting
                 x_try, eta_try, done = self._refined(csc, lu, b, A_norm, self.refine)
                 info["refinements"] += done

@@ -288,40 +288,6 @@ def test_direct_reuses_factors_only_to_its_backward_tolerance():
         make_linear_solver("direct", reuse_factors=-1)
 
 
-def test_direct_reuses_the_factors_of_the_same_matrix():
-    """Inside ``repeated_solves()`` a further solve with the very same assembled matrix (same object, same version)
-    substitutes with the kept factors, to the same backward error and solution as a fresh factorisation; a
-    re-assembly (new version), a second matrix of the same pattern or a matrix not from an assembler is factored
-    afresh, and the factors are dropped when the context ends (outside it nothing is kept)."""
-    import scipy.sparse as sp
-
-    rng = np.random.default_rng(6)
-    model = benchmark_cloth(8, kd=2.0)
-    asm = SystemAssembler(model, make_force_terms(model))
-    q, qd = 0.9 * model.particle_q, rng.uniform(-1.0, 1.0, model.particle_q.shape)
-    h = 1.0 / 60.0
-    n = 3 * model.free_count
-    solver = make_linear_solver("direct")
-    A = asm.assemble(q, qd, h * h, h, "exact")
-    b = rng.standard_normal(n)
-    assert [solver.solve(A, b).info["same_matrix"] for _ in range(2)] == [False, False]  # nothing kept outside
-    with solver.repeated_solves():
-        first = solver.solve(A, rng.standard_normal(n))
-        again, ref = solver.solve(A, b), make_linear_solver("direct").solve(A, b)
-        assert not first.info["same_matrix"] and again.info["same_matrix"]
-        assert again.info["nnz_LU"] == first.info["nnz_LU"] and again.info["pivoting"] == first.info["pivoting"]
-        assert again.converged and again.backward_error <= solver.backward_tol
-        assert np.linalg.norm(again.x - ref.x) <= 1e-10 * np.linalg.norm(ref.x)
-        K = asm.new_matrix()
-        A = asm.assemble(q, qd, h * h, h, "exact", also=(h * h, h, K))  # same values, new versions
-        assert not solver.solve(K, b).info["same_matrix"] and not solver.solve(A, b).info["same_matrix"]
-        plain = sp.identity(6, format="csr") * 2.0
-        assert [solver.solve(plain, np.ones(6)).info["same_matrix"] for _ in range(2)] == [False, False]
-        solver.solve(A, b)
-    assert solver._kept is None
-    assert not solver.solve(A, b).info["same_matrix"]
-
-
 def test_direct_factor_reuse_keeps_the_trajectory():
     """TR-BDF2 on the 8 x 8 cloth with reused factors: every solve meets the same backward error, so 30 steps at
     1/60 s follow the plain path's trajectory to 1e-9 (relative) with the same Newton iterations."""

@@ -27,13 +27,8 @@ from springsim.scene.gallery import benchmark_cloth
 
 IMPLICIT = [k for k, c in INTEGRATORS.items() if c.implicit]
 EXPLICIT = [k for k, c in INTEGRATORS.items() if not c.implicit]
-#: implicit integrators that iterate Newton to convergence (all but the linearly implicit methods)
-NEWTON = [k for k in IMPLICIT if k not in ("linearized_implicit", "ros2")]
-#: ROS2 at large steps on stiff cloth: a known limitation, pinned strictly
-ROS2_LARGE_STEP = pytest.mark.xfail(strict=True, reason=(
-    "known limitation: ROS2 is linearly implicit, and nothing corrects its linearisation of the stiff springs, so at "
-    "steps far beyond its accuracy (stiff cloth at h = 1/30 s, the benchmark cloth at h = 0.1 s) a step gains "
-    "energy and the run stops with the energy-bound error (springsim/integrators/rosenbrock.py)"))
+#: implicit integrators that iterate Newton to convergence (all but the one-iteration linearized method)
+NEWTON = [k for k in IMPLICIT if k != "linearized_implicit"]
 
 
 def energy(model, q, qd):
@@ -199,7 +194,7 @@ def test_stiff_cloth_explicit_blows_up(name):
 
 
 # -- 2. large steps on the benchmark cloth ----------------------------------------------------------------
-@pytest.mark.parametrize("name", [pytest.param(k, marks=ROS2_LARGE_STEP) if k == "ros2" else k for k in IMPLICIT])
+@pytest.mark.parametrize("name", IMPLICIT)
 def test_benchmark_cloth_large_step_no_nan(name):
     """Benchmark cloth (8x8) at h = 0.1 s for 3 s: every implicit integrator runs without NaN/inf (linearized implicit
     Euler with the spd Jacobian, its robust mode for stiff cloth at large steps)."""
@@ -314,9 +309,7 @@ def test_coincident_gravitational_default_softening_runs(name):
     assert err is None and np.isfinite(tr.q).all() and np.isfinite(tr.qd).all()
     assert all(s.ok for s in tr.stats)
     loss = max(s.precision_loss for s in tr.stats)
-    # ROS2 takes its Jacobian at the step's start, where particles 2 and 3 coincide: the 0.1 m spring between them
-    # has the stiffness ke l0 / eps there (1e10 N/m; the Newton methods evaluate it 3.7 mm apart). Measured 6.5e-10.
-    assert loss < (1e-9 if name == "ros2" else 1e-12)
+    assert loss < 1e-12
     assert com_velocity_error(m, tr, 4, 5) <= 10 * loss + 1e-14
 
 
