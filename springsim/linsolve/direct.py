@@ -125,6 +125,8 @@ class LinearSolverDirect(LinearSolver):
             if eta_try <= self.backward_tol:
                 x, eta = x_try, eta_try
                 info.update(refinements=done, reused_factors=True)
+        if not info["reused_factors"]:
+            self._kept = None  # the old factors go before the new ones are made: one set alive at the peak
         for pivoting in (() if info["reused_factors"] else (False, True)):
             t1 = time.perf_counter()
             lu, err = self._factor(csc, pivoting)
