@@ -7,11 +7,13 @@ included) at the substep count a compiled semi-implicit Euler needs to stay stab
 per frame at n = 32, doubling with n). The same model is stepped ``--naive-steps`` times by a
 plain loop over :func:`springsim.forces.naive.naive_forces` (fancy-index gathers, ``np.add.at``
 scatters: the straightforward numpy implementation), and the two states after those substeps
-are compared (round-off only). ``warp ms`` is NVIDIA Newton 1.8's CPU semi-implicit solver on the
+are compared (round-off only). Each size runs once per force kernel of ``--kernels``: ``numpy`` (the pure
+path) and ``numba`` (the compiled force pass of the ``accel`` extra, :mod:`springsim.forces.spring`); by
+default both when numba is installed. ``warp ms`` is NVIDIA Newton 1.8's CPU semi-implicit solver on the
 identical model, one core, as measured for the comparison (n = 32 ... 256); the target is 2x that.
 
     python -m benchmarks explicit-speed                 # n = 64 128 256
-    python -m benchmarks explicit-speed --sizes 32 --naive-steps 20
+    python -m benchmarks explicit-speed --sizes 32 --naive-steps 20 --kernels numpy
     python -m benchmarks explicit-speed --quick         # n = 8 (tests)
 """
 
@@ -23,6 +25,7 @@ import time
 import numpy as np
 
 import springsim
+from springsim._accel import numba_available
 from springsim._threads import single_blas_thread
 from springsim.forces.naive import naive_forces
 from springsim.scene import benchmark_cloth
@@ -34,7 +37,7 @@ from .common import RESULTS_DIR, markdown_table, write_csv
 #: 862 ms / 512, 8.7 s / 1024).
 WARP_MS_PER_SUBSTEP = {32: 14.0 / 128, 64: 135.0 / 256, 128: 862.0 / 512, 256: 8700.0 / 1024}
 
-COLUMNS = ["n", "springs", "substeps_per_frame", "ms_per_substep_wall", "ms_per_substep_cpu", "naive_ms_cpu",
+COLUMNS = ["n", "springs", "kernels", "substeps_per_frame", "ms_per_substep_wall", "ms_per_substep_cpu", "naive_ms_cpu",
            "speedup_vs_naive", "warp_ms", "ratio_to_warp", "cpu_s_per_frame", "max_state_diff_m"]
 
 
@@ -53,11 +56,11 @@ def _naive(model, dt: float, steps: int):
     return q, (time.process_time() - c) / steps
 
 
-def run_size(n: int, naive_steps: int) -> dict:
+def run_size(n: int, naive_steps: int, kernels: str = "numpy") -> dict:
     model = benchmark_cloth(n)
     S = substeps_per_frame(n)
     dt = 1.0 / 60 / S
-    integ = springsim.make_integrator("symplectic_euler", model)
+    integ = springsim.make_integrator("symplectic_euler", model, force_kernels=kernels)
     springsim.simulate(model, integ, dt, 3, record=False)  # warm-up (imports, incidence matrices)
     w, c = time.perf_counter(), time.process_time()
     springsim.simulate(model, integ, dt, S, record=False)
@@ -67,7 +70,7 @@ def run_size(n: int, naive_steps: int) -> dict:
     with single_blas_thread():
         slow, naive_cpu = _naive(model, dt, k)
     warp = WARP_MS_PER_SUBSTEP.get(n)
-    return dict(n=n, springs=model.spring_count, substeps_per_frame=S, ms_per_substep_wall=1e3 * wall,
+    return dict(n=n, springs=model.spring_count, kernels=kernels, substeps_per_frame=S, ms_per_substep_wall=1e3 * wall,
                 ms_per_substep_cpu=1e3 * cpu, naive_ms_cpu=1e3 * naive_cpu, speedup_vs_naive=naive_cpu / cpu,
                 warp_ms=warp if warp is not None else float("nan"),
                 ratio_to_warp=1e3 * cpu / warp if warp else float("nan"), cpu_s_per_frame=cpu * S,
@@ -78,11 +81,14 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--sizes", type=int, nargs="*", default=[64, 128, 256], help="cloth sizes n")
     p.add_argument("--naive-steps", type=int, default=50, help="substeps of the naive loop (and of the comparison)")
+    p.add_argument("--kernels", nargs="*", choices=["numpy", "numba"], default=None,
+                   help="force kernels to time (default: numpy, and numba when installed)")
     p.add_argument("--quick", action="store_true", help="n = 8, 10 naive substeps")
     p.add_argument("--out", default=str(RESULTS_DIR), help="output directory")
     a = p.parse_args(argv)
     sizes, naive = ([8], 10) if a.quick else (a.sizes, a.naive_steps)
-    rows = [run_size(n, naive) for n in sizes]
+    kernels = a.kernels or (["numpy", "numba"] if numba_available() else ["numpy"])
+    rows = [run_size(n, naive, k) for n in sizes for k in kernels]
     from pathlib import Path
 
     out = Path(a.out)

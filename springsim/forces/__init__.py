@@ -23,9 +23,13 @@ FORCE_TERMS: dict[str, type[ForceTerm]] = {
 }
 
 
-def make_force_terms(model, *, skip_fixed: bool = True) -> list[ForceTerm]:
-    """Instantiate only the force terms ``model`` uses."""
-    terms = (cls.from_model(model, skip_fixed=skip_fixed) for cls in FORCE_TERMS.values())
+def make_force_terms(model, *, skip_fixed: bool = True, kernels: str = "auto") -> list[ForceTerm]:
+    """Instantiate only the force terms ``model`` uses.
+
+    ``kernels``: ``"auto"`` (compiled force passes where numba is installed and the term is large enough),
+    ``"numba"`` or ``"numpy"`` (the pure path), passed to every term's :meth:`ForceTerm.from_model`.
+    """
+    terms = (cls.from_model(model, skip_fixed=skip_fixed, kernels=kernels) for cls in FORCE_TERMS.values())
     return [t for t in terms if t is not None]
 
 

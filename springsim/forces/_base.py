@@ -118,11 +118,13 @@ class ForceTerm(ABC):
 
     @classmethod
     @abstractmethod
-    def from_model(cls, model, *, skip_fixed: bool = True) -> "ForceTerm | None":
+    def from_model(cls, model, *, skip_fixed: bool = True, kernels: str = "auto") -> "ForceTerm | None":
         """The term for ``model``, or None when the model has nothing of it.
 
         With ``skip_fixed`` (default), items acting only between fixed particles are
-        dropped: they never move anything.
+        dropped: they never move anything. ``kernels`` (``"auto"``, ``"numba"`` or ``"numpy"``)
+        chooses a compiled force evaluation where the term has one (:mod:`springsim._accel`); terms
+        without one ignore it.
         """
 
     @abstractmethod

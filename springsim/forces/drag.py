@@ -21,7 +21,7 @@ class ForceDrag(ForceTerm):
         self._blocks = -self.beta[:, None, None] * np.eye(3)
 
     @classmethod
-    def from_model(cls, model, *, skip_fixed=True):
+    def from_model(cls, model, *, skip_fixed=True, kernels="auto"):
         use = model.particle_drag > 0
         if skip_fixed:
             use &= ~model.particle_fixed

@@ -65,7 +65,7 @@ class ForceGravitational(ForceTerm):
         self.incidence = PairIncidence(self.pairs)
 
     @classmethod
-    def from_model(cls, model, *, skip_fixed=True):
+    def from_model(cls, model, *, skip_fixed=True, kernels="auto"):
         keep = active_pairs(model.gravitational_indices, model.particle_fixed, skip_fixed)
         keep = keep[model.gravitational_G[keep] > 0]
         if keep.size == 0:

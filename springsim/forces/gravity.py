@@ -20,7 +20,7 @@ class ForceGravity(ForceTerm):
         self._force = self.mass[:, None] * self.g
 
     @classmethod
-    def from_model(cls, model, *, skip_fixed=True):
+    def from_model(cls, model, *, skip_fixed=True, kernels="auto"):
         if model.gravity == 0.0 or model.particle_count == 0:
             return None
         return cls(model.particle_mass, model.gravity_vector)

@@ -25,6 +25,13 @@ midpoint ``q_m = (q_0 + q_1)/2`` (``q_0`` held, :meth:`ForceSpring.eval_jacobian
 (not symmetric); ``symmetric`` replaces ``d_m n_1^T`` by ``|d_m| n_m n_m^T``, and ``spd`` also clamps
 ``1 - l0/lbar`` at 0 as above. At ``q_0 = q_1`` all three equal the ordinary Jacobians.
 
+Kernels: ``kernels="numba"`` (the ``accel`` extra) evaluates :meth:`ForceSpring.eval_force` in one compiled
+pass over the springs (:func:`springsim.forces._numba_kernels.spring_forces`), with no temporary arrays;
+``"numpy"`` is the pure path (the incidence-matrix products above); ``"auto"`` takes the compiled pass when
+numba is installed and there are at least :attr:`ForceSpring.auto_min_pairs` springs (below that, the
+import of numba costs more than it saves). Both give the same forces to round-off (the tests check it);
+the Jacobians and the energy-momentum forms always run in numpy.
+
 Jacobian modes: ``symmetric`` drops the non-symmetric damping position term;
 ``spd`` also clamps the transverse coefficient ``(l - l0)/l`` at 0 so that ``-dF/dq``
 is positive semi-definite.
@@ -40,6 +47,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._accel import resolve
 from ._base import (BlockLayout, Blocks, ForceTerm, PairIncidence, active_pairs, outer, pair_geometry, scratch,
                     step_pairs)
 
@@ -58,12 +66,18 @@ class ForceSpring(ForceTerm):
         Stiffness [N/m], damping [N s/m], rest length [m].
     eps : float
         Pair distance below which the direction is undefined [m].
+    kernels : {"auto", "numba", "numpy"}
+        How :meth:`eval_force` runs (module docstring); ``"numba"`` without numba raises ``ValueError``.
     """
 
     name = "spring"
     pairwise = True
+    #: Accepted values of ``kernels``.
+    KERNELS = ("auto", "numba", "numpy")
+    #: ``kernels="auto"`` compiles the force pass from this many springs on.
+    auto_min_pairs = 2048
 
-    def __init__(self, pairs, ke, kd, rest_length, eps: float = 1e-9):
+    def __init__(self, pairs, ke, kd, rest_length, eps: float = 1e-9, kernels: str = "auto"):
         self.pairs = np.asarray(pairs, dtype=np.int64)
         self.ke = np.asarray(ke, dtype=np.float64)
         self.kd = np.asarray(kd, dtype=np.float64)
@@ -76,14 +90,16 @@ class ForceSpring(ForceTerm):
         self.incidence = PairIncidence(self.pairs)
         self._damped_incidence = PairIncidence(self.pairs[self.damped])
         self._kd_damped = self.kd[self.damped]
+        small = kernels == "auto" and self.pairs.shape[0] < self.auto_min_pairs
+        self.kernels = resolve("numpy" if small else kernels, "numpy", self.KERNELS)
 
     @classmethod
-    def from_model(cls, model, *, skip_fixed=True):
+    def from_model(cls, model, *, skip_fixed=True, kernels="auto"):
         keep = active_pairs(model.spring_indices, model.particle_fixed, skip_fixed)
         if keep.size == 0:
             return None
         return cls(model.spring_indices[keep], model.spring_stiffness[keep], model.spring_damping[keep],
-                   model.spring_rest_length[keep], model.pair_epsilon)
+                   model.spring_rest_length[keep], model.pair_epsilon, kernels=kernels)
 
     def jacobian_symmetric(self, mode: str) -> bool:
         # the damping force's position derivative (dF/dq of eq. 8) is not symmetric; the other modes drop it
@@ -115,6 +131,11 @@ class ForceSpring(ForceTerm):
         self.incidence.scatter(f, f_out)
 
     def eval_force(self, q, qd, f_out):
+        if self.kernels == "numba":
+            from ._numba_kernels import spring_forces
+
+            spring_forces(q, qd, self.pairs, self.ke, self.kd, self.l0, self.eps, f_out)
+            return
         # elastic: f = -k (1 - l0/max(l, eps)) d, no direction vector needed
         d = self.incidence.diff(q)
         l = np.sqrt(np.einsum("ij,ij->i", d, d))

@@ -124,6 +124,9 @@ class Integrator(ABC):
     model : Model
     terms : list of ForceTerm, optional
         Force terms (default: those the model uses).
+    force_kernels : {"auto", "numba", "numpy"}
+        Compiled force passes where numba is installed (``"auto"``; see :func:`springsim.forces.make_force_terms`)
+        or the pure numpy path; used only when ``terms`` is not given.
     """
 
     name: ClassVar[str]
@@ -144,9 +147,9 @@ class Integrator(ABC):
         "line_search", "min_step", "escalate_jacobian", "escalate_after", "forcing", "forcing_max",
         "filter_estimates"})
 
-    def __init__(self, model, *, terms=None):
+    def __init__(self, model, *, terms=None, force_kernels: str = "auto"):
         self.model = model
-        self.terms = make_force_terms(model) if terms is None else list(terms)
+        self.terms = make_force_terms(model, kernels=force_kernels) if terms is None else list(terms)
         self.free = model.free_particles
         self.fixed = model.particle_fixed
         self._inv_mass = np.where(self.fixed, 0.0, 1.0 / model.particle_mass)[:, None]

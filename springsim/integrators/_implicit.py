@@ -283,6 +283,9 @@ class ImplicitIntegrator(Integrator):
         estimate use it.
     terms : list of ForceTerm, optional
         Force terms (default: those the model uses).
+    force_kernels : {"auto", "numba", "numpy"}
+        Compiled force passes where numba is installed (``"auto"``; see :func:`springsim.forces.make_force_terms`)
+        or the pure numpy path; used only when ``terms`` is not given.
     """
 
     implicit = True
@@ -296,8 +299,9 @@ class ImplicitIntegrator(Integrator):
                  newton_maxiter: int | None = None, residual_rtol: float = 1e-3, on_nonconvergence: str = "warn",
                  solver_options: dict | None = None, line_search: bool = True, min_step: float = 1.0 / 64,
                  escalate_jacobian: bool = True, escalate_after: int | None = None, forcing: str = "fixed",
-                 forcing_max: float = 0.1, filter_estimates: bool | None = None, terms=None):
-        super().__init__(model, terms=terms)
+                 forcing_max: float = 0.1, filter_estimates: bool | None = None, terms=None,
+                 force_kernels: str = "auto"):
+        super().__init__(model, terms=terms, force_kernels=force_kernels)
         self.solver = make_linear_solver(solver, **(solver_options or {}))
         if jacobian is None:
             jacobian = "spd" if self.solver.needs_spd_for(3 * model.free_count) else "exact"

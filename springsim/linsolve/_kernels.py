@@ -30,10 +30,10 @@ check the compiled one against it.
 
 from __future__ import annotations
 
-import importlib.util
-
 import numpy as np
 import scipy.sparse as sp
+
+from .. import _accel
 
 __all__ = ["KERNELS", "BsrOperator", "BsrProduct", "CompiledVCycle", "block_diagonal_inverse",
            "block_gauss_seidel_backward", "block_gauss_seidel_forward", "bsr_matmat", "bsr_operator",
@@ -45,7 +45,7 @@ KERNELS = ("auto", "numba", "scipy")
 
 def numba_available() -> bool:
     """Whether numba can be imported (without importing it)."""
-    return importlib.util.find_spec("numba") is not None
+    return _accel.numba_available()
 
 
 def resolve_kernels(kernels: str) -> str:
@@ -56,15 +56,7 @@ def resolve_kernels(kernels: str) -> str:
     ValueError
         For a value not in :data:`KERNELS`, or ``"numba"`` without numba installed.
     """
-    if kernels not in KERNELS:
-        raise ValueError(f"kernels must be one of {', '.join(map(repr, KERNELS))}, got {kernels!r}")
-    if kernels == "scipy":
-        return "scipy"
-    if numba_available():
-        return "numba"
-    if kernels == "numba":
-        raise ValueError("kernels='numba' needs numba, which is not installed (pip install 'springsim[accel]')")
-    return "scipy"
+    return _accel.resolve(kernels, "scipy", KERNELS, available=lambda: numba_available())
 
 
 def _numba():

@@ -4,11 +4,15 @@ import numpy as np
 import pytest
 from helpers import random_scene
 
-from springsim import ModelBuilder, make_integrator, simulate
-from springsim.forces import eval_forces, make_force_terms
+from springsim import ModelBuilder, _accel, make_integrator, simulate
+from springsim.forces import ForceSpring, eval_forces, make_force_terms
 from springsim.forces._base import PairIncidence
 from springsim.forces.naive import naive_forces
 from springsim.scene import benchmark_cloth
+
+# the pure path, and the compiled force pass of the `accel` extra (the test extra installs numba, so CI runs both)
+needs_numba = pytest.mark.skipif(not _accel.numba_available(), reason="numba (the accel extra) is not installed")
+KERNELS = ["numpy", pytest.param("numba", marks=needs_numba)]
 
 
 def test_incidence_gather_is_exact_and_scatter_sums():
@@ -28,8 +32,9 @@ def test_incidence_gather_is_exact_and_scatter_sums():
     np.testing.assert_allclose(out, ref, rtol=0, atol=1e-13 * np.abs(f).sum())
 
 
+@pytest.mark.parametrize("kernels", KERNELS)
 @pytest.mark.parametrize("seed", range(12))
-def test_force_terms_equal_the_naive_forces(seed):
+def test_force_terms_equal_the_naive_forces(seed, kernels):
     """Every term together gives the naive total force on every free particle, near-degenerate pairs included."""
     rng = np.random.default_rng(seed)
     m = random_scene(rng, n=10, springs=20, gravitational=5)
@@ -39,14 +44,17 @@ def test_force_terms_equal_the_naive_forces(seed):
         q[j] = q[i]
         i, j = m.spring_indices[1]
         q[j] = q[i] + 1e-12
-    f = eval_forces(make_force_terms(m), q, qd)
+    terms = make_force_terms(m, kernels=kernels)
+    assert [t.kernels for t in terms if t.name == "spring"] == [kernels]
+    f = eval_forces(terms, q, qd)
     ref = naive_forces(m, q, qd)
     free = ~m.particle_fixed
     scale = np.abs(ref[free]).max()
     np.testing.assert_allclose(f[free], ref[free], rtol=0, atol=1e-13 * scale)
 
 
-def test_symplectic_trajectory_equals_the_naive_stepping():
+@pytest.mark.parametrize("kernels", KERNELS)
+def test_symplectic_trajectory_equals_the_naive_stepping(kernels):
     """100 symplectic Euler steps of a damped cloth with a weight: the library matches a loop over naive_forces."""
     b = ModelBuilder()
     grid = b.add_cloth_grid(6, 5, pin="top", damping=0.02, drag=1e-3)
@@ -54,7 +62,7 @@ def test_symplectic_trajectory_equals_the_naive_stepping():
     b.add_spring(grid[0], w, stiffness=80.0, damping=0.1)
     m = b.finalize()
     dt, steps = 1e-3, 100
-    traj = simulate(m, make_integrator("symplectic_euler", m), dt, steps, record=False)
+    traj = simulate(m, make_integrator("symplectic_euler", m, force_kernels=kernels), dt, steps, record=False)
     q, qd = m.particle_q.copy(), m.particle_qd.copy()
     inv_m = np.where(m.particle_fixed, 0.0, 1.0 / m.particle_mass)[:, None]
     for _ in range(steps):
@@ -64,16 +72,47 @@ def test_symplectic_trajectory_equals_the_naive_stepping():
     np.testing.assert_allclose(traj.qd[-1], qd, rtol=0, atol=1e-10)
 
 
-def test_benchmark_cloth_forces_match_at_scale():
-    """On a 32 x 32 benchmark cloth in a perturbed state the fast path equals the naive one to round-off."""
+@pytest.mark.parametrize("kernels", KERNELS)
+def test_benchmark_cloth_forces_match_at_scale(kernels):
+    """On a 32 x 32 benchmark cloth in a perturbed state the fast paths equal the naive one to round-off."""
     m = benchmark_cloth(32, kd=0.1)
     rng = np.random.default_rng(1)
     q = m.particle_q + 0.01 * rng.standard_normal(m.particle_q.shape)
     qd = rng.standard_normal(q.shape)
-    f = eval_forces(make_force_terms(m), q, qd)
+    f = eval_forces(make_force_terms(m, kernels=kernels), q, qd)
     ref = naive_forces(m, q, qd)
     free = ~m.particle_fixed
     np.testing.assert_allclose(f[free], ref[free], rtol=0, atol=1e-12 * np.abs(ref[free]).max())
+
+
+@needs_numba
+def test_compiled_cloth_trajectory_equals_the_pure_one():
+    """300 symplectic Euler steps of a damped 24 x 24 cloth (above the size where "auto" compiles): the
+    compiled force pass gives the pure path's trajectory to round-off."""
+    m = benchmark_cloth(24, kd=0.05)
+    auto = make_integrator("symplectic_euler", m)
+    assert [t.kernels for t in auto.terms if t.name == "spring"] == ["numba"]
+    dt, steps = 2e-4, 300
+    runs = [simulate(m, make_integrator("symplectic_euler", m, force_kernels=k), dt, steps, record=False)
+            for k in ("numpy", "numba")]
+    assert np.abs(runs[0].q[-1] - m.particle_q).max() > 1e-3  # it moved
+    np.testing.assert_allclose(runs[1].q[-1], runs[0].q[-1], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(runs[1].qd[-1], runs[0].qd[-1], rtol=0, atol=1e-9)
+
+
+def test_force_kernels_option(monkeypatch):
+    """"auto" compiles only from ForceSpring.auto_min_pairs springs on and only with numba; bad values and
+    "numba" without numba are clear errors; the core works without numba."""
+    small, large = benchmark_cloth(4), benchmark_cloth(24)
+    assert large.spring_count >= ForceSpring.auto_min_pairs > small.spring_count
+    spring = [t for t in make_force_terms(small) if t.name == "spring"][0]
+    assert spring.kernels == "numpy"
+    with pytest.raises(ValueError, match="kernels must be one of 'auto', 'numba', 'numpy', got 'fortran'"):
+        make_force_terms(small, kernels="fortran")
+    monkeypatch.setattr(_accel, "numba_available", lambda: False)
+    assert [t.kernels for t in make_force_terms(large) if t.name == "spring"] == ["numpy"]
+    with pytest.raises(ValueError, match=r"needs numba.*springsim\[accel\]"):
+        make_integrator("symplectic_euler", large, force_kernels="numba")
 
 
 @pytest.mark.slow
@@ -86,5 +125,6 @@ def test_explicit_speed_benchmark_quick(tmp_path, capsys):
     assert explicit_speed.main(["--quick", "--out", str(tmp_path)]) == 0
     with open(tmp_path / "explicit_speed.csv") as fh:
         rows = list(csv.DictReader(fh))
-    assert list(rows[0]) == explicit_speed.COLUMNS and float(rows[0]["max_state_diff_m"]) < 1e-12
+    assert list(rows[0]) == explicit_speed.COLUMNS and all(float(r["max_state_diff_m"]) < 1e-12 for r in rows)
+    assert [r["kernels"] for r in rows] == (["numpy", "numba"] if _accel.numba_available() else ["numpy"])
     assert "| n | springs |" in capsys.readouterr().out
