@@ -38,7 +38,10 @@ sets the structural and shear stiffness instead (``--ke 1e4`` is ``benchmark_clo
    its error is then a lower bound (``err_lower_bound``). The cheapest candidate (CPU time per frame)
    whose error is below ``--target`` (1 cm) wins. Unless ``--measure-all``, candidates whose probe is
    dearer than the cheapest passing one are not run; candidates whose estimated cost exceeds the
-   size's remaining ``--budget`` are skipped (the status says which).
+   size's remaining ``--budget`` are skipped (the status says which), and a candidate still running when
+   the budget runs out stops at the end of that frame: its error is then a lower bound and its cost per
+   frame is reported as the CPU time spent over the whole window's frames, also a lower bound
+   (``cost_lower_bound``).
 4. Prints a table and writes ``results/frame_cost.csv`` (one row per size), ``results/frame_cost_candidates.csv``
    (the reference levels, the cross-check, symplectic Euler and every candidate) and
    ``results/frame_cost.md`` (``--append`` keeps other sizes' rows).
@@ -100,7 +103,7 @@ COLUMNS = ["n", "ke", "dofs", "frames", "window_s", "target", "ref_method", "ref
 #: Columns of the per-run CSV (reference levels, cross-check, symplectic Euler, candidates).
 CANDIDATE_COLUMNS = ["n", "role", "config", "method", "solver", "h", "steps_per_frame", "steps", "frames_run",
                      "probe_frame_s", "probe_cpu_frame_s", "wall_s", "cpu_s", "wall_per_frame_s", "cpu_per_frame_s",
-                     "err_rms", "below_floor", "err_lower_bound", "err_frame", "err_final", "err_raw", "floor",
+                     "cost_lower_bound", "err_rms", "below_floor", "err_lower_bound", "err_frame", "err_final", "err_raw", "floor",
                      "diff_to_next", "newton_per_step", "linear_per_step", "newton_failures", "status"]
 
 #: Default candidates, ``method:1/h:solver``.
@@ -379,20 +382,24 @@ def rms(a: np.ndarray, b: np.ndarray) -> float:
     return float(reference_cache.frame_rms(a, b))
 
 
-def track_errors(run, steps_per_frame: int, ref_q: np.ndarray, *, stop_above: float = 0.0) -> dict:
+def track_errors(run, steps_per_frame: int, ref_q: np.ndarray, *, stop_above: float = 0.0,
+                 deadline: float | None = None) -> dict:
     """Advance ``run`` frame by frame over the frames of ``ref_q`` (frames + 1, N, 3), error at every frame.
+
+    ``deadline``: a ``time.perf_counter`` value; the run stops after the first frame that ends past it.
 
     Returns
     -------
     dict
         ``errors`` (frames + 1,) [m] (NaN after the last frame run), ``frames_run``, ``finite``, ``stopped``
-        (True when the error exceeded ``stop_above`` > 0 and the run stopped there), ``err_max`` (max over
-        the frames run), ``err_frame`` (its frame), ``err_final`` (error at the last frame, NaN unless reached).
+        (True when the error exceeded ``stop_above`` > 0 and the run stopped there), ``out_of_time`` (True when
+        it stopped at the deadline before the last frame), ``err_max`` (max over the frames run), ``err_frame``
+        (its frame), ``err_final`` (error at the last frame, NaN unless reached).
     """
     frames = ref_q.shape[0] - 1
     errors = np.full(frames + 1, np.nan)
     errors[0] = rms(run.positions, ref_q[0])
-    finite, stopped, k = True, False, 0
+    finite, stopped, out_of_time, k = True, False, False, 0
     for k in range(1, frames + 1):
         finite = run.advance(steps_per_frame)
         errors[k] = rms(run.positions, ref_q[k]) if finite else np.inf
@@ -401,8 +408,12 @@ def track_errors(run, steps_per_frame: int, ref_q: np.ndarray, *, stop_above: fl
         if stop_above > 0 and errors[k] > stop_above and k < frames:
             stopped = True
             break
+        if deadline is not None and time.perf_counter() > deadline and k < frames:
+            out_of_time = True
+            break
     f = int(np.nanargmax(errors))
-    return dict(errors=errors, frames_run=k, finite=finite, stopped=stopped, err_max=float(errors[f]), err_frame=f,
+    return dict(errors=errors, frames_run=k, finite=finite, stopped=stopped, out_of_time=out_of_time,
+                err_max=float(errors[f]), err_frame=f,
                 err_final=float(errors[frames]) if k == frames and finite else float("nan"))
 
 
@@ -486,12 +497,18 @@ def measure_size(n: int, a, log=print) -> tuple[dict, list[dict]]:
                    omega_gershgorin=om0["gershgorin"], lanczos_steps=om0["steps"], load_start=load_start)
 
     def error_row(run, res, row):
+        late = res.get("out_of_time", False)
         r = {**row, "steps": run.steps, "frames_run": res["frames_run"], "wall_s": run.wall, "cpu_s": run.cpu,
-             "wall_per_frame_s": per_frame(run, run.wall), "cpu_per_frame_s": per_frame(run, run.cpu),
-             **_floor_fields(res["err_max"], floor), "err_lower_bound": res["stopped"], "err_frame": res["err_frame"],
-             "err_final": res["err_final"], "floor": floor, **run.summary()}
+             # stopped at the budget: what it spent, spread over the whole window, is a lower bound of its cost
+             "wall_per_frame_s": run.wall / frames if late else per_frame(run, run.wall),
+             "cpu_per_frame_s": run.cpu / frames if late else per_frame(run, run.cpu), "cost_lower_bound": late,
+             **_floor_fields(res["err_max"], floor), "err_lower_bound": res["stopped"] or late,
+             "err_frame": res["err_frame"], "err_final": res["err_final"], "floor": floor, **run.summary()}
         if not res["finite"]:
             r["status"] = f"blew up at frame {res['frames_run']}"
+        elif late:
+            r["status"] = (f"stopped at frame {res['frames_run']}: over the budget (more than "
+                           f"{r['cpu_per_frame_s']:.3g} CPU s per frame)")
         elif res["stopped"]:
             r["status"] = f"stopped at frame {res['frames_run']}: error above {a.stop_above:g} m"
         else:
@@ -554,7 +571,7 @@ def measure_size(n: int, a, log=print) -> tuple[dict, list[dict]]:
             log(f"  {c.label}: skipped (estimated {est:.0f} s, over budget)")
             continue
         run = make_run(model, c, cand_opts)
-        res = track_errors(run, c.steps_per_frame, ref.q, stop_above=a.stop_above)
+        res = track_errors(run, c.steps_per_frame, ref.q, stop_above=a.stop_above, deadline=budget_end)
         r = error_row(run, res, row)
         rows.append(r)
         log(f"  {c.label}: error {'>= ' if res['stopped'] else ''}{res['err_max']:.3g} m (frame {res['err_frame']}"
@@ -617,7 +634,8 @@ def markdown(summaries: list[dict], rows: list[dict], target: float) -> str:
     """The summary and per-run tables of ``results/frame_cost.md``."""
     s_rows = [{**r, "err": _err_text(r), "se_err": _err_text(r, "se_err_rms", "se_below_floor", "-")}
               for r in summaries]
-    c_rows = [{**r, "err": _err_text(r)} for r in rows]
+    c_rows = [{**r, "err": _err_text(r), "cpu_per_frame_s": _err_text(r, "cpu_per_frame_s", "-", "cost_lower_bound")}
+              for r in rows]
     s_cols = ["n", "ke", "dofs", "frames", "floor", "config", "err", "cpu_per_frame_s", "wall_per_frame_s", "se_substeps",
               "se_err", "se_cpu_per_frame_s", "se_wall_per_frame_s", "cpu_ratio_to_se", "load_start", "load_end"]
     c_cols = ["n", "role", "config", "frames_run", "err", "err_frame", "err_final", "err_raw", "diff_to_next",

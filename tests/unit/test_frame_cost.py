@@ -66,6 +66,27 @@ def test_quick_run_writes_columns_and_verifies_the_limit(fc, tmp_path):
             == {c["config"]: c["err_raw"] for c in cand if c["role"] != "reference"})
 
 
+def test_candidate_over_the_budget_stops_with_lower_bounds(fc, tmp_path, monkeypatch):
+    """A candidate still running when the size's budget runs out stops after that frame: its error and its cost
+    per frame (the CPU spent, over the whole window) are lower bounds, and the tables say so."""
+    track = fc.track_errors
+
+    def spent(*args, **kw):  # the candidates' deadline has passed; symplectic Euler has none and runs through
+        return track(*args, **{**kw, "deadline": 0.0} if kw.get("deadline") is not None else kw)
+
+    monkeypatch.setattr(fc, "track_errors", spent)
+    assert fc.main(["--quick", "--out", str(tmp_path), "--cache-dir", str(tmp_path / "ref")]) == 0
+    cand, _ = _read(tmp_path / "frame_cost_candidates.csv")
+    late = [c for c in cand if c["role"] == "candidate" and c["err_rms"]]
+    assert late and all(c["status"].startswith("stopped at frame 1: over the budget") for c in late)
+    for c in late:
+        assert c["cost_lower_bound"] == "True" and c["err_lower_bound"] == "True" and int(c["frames_run"]) == 1
+        assert float(c["cpu_per_frame_s"]) == pytest.approx(float(c["cpu_s"]) / fc.DEFAULT_FRAMES)
+    se = [c for c in cand if c["role"] == "explicit"][0]
+    assert int(se["frames_run"]) == fc.DEFAULT_FRAMES and se["cost_lower_bound"] == "False"
+    assert "> " in (tmp_path / "frame_cost.md").read_text().split("### Every run")[1]
+
+
 def test_candidate_equal_to_the_reference_has_no_error(fc, tmp_path):
     """Errors are against the reference at every frame: the reference's own configuration measures 0 (reported as
     below the floor), another explicit method at the same step does not."""
@@ -112,6 +133,11 @@ def test_error_is_against_the_reference_not_the_method_itself(fc):
                               stop_above=0.05)
     assert stopped["stopped"] and stopped["err_max"] > 0.05 and stopped["frames_run"] < fc.DEFAULT_FRAMES
     assert np.all(true[:stopped["frames_run"]] <= 0.05)
+    import time
+
+    late = fc.track_errors(fc.make_run(model, fc.parse_candidate("linearized_implicit:60:direct"), {}), 1, ref.q,
+                           deadline=time.perf_counter())  # the budget is spent: it stops after its first frame
+    assert late["out_of_time"] and late["frames_run"] == 1 and late["err_max"] == true[1] and not late["stopped"]
 
 
 def test_reference_converges_and_agrees_with_solve_ivp(fc, tmp_path):
