@@ -4,8 +4,8 @@ The frame benchmarks measure a method's error against the motion the model's ODE
 prescribes, never against the method itself at a smaller step. That motion is computed here by
 **velocity Verlet** (kick-drift-kick leapfrog; second order and symplectic for position-only forces,
 stable for ``h omega_max < 2``, one force evaluation per substep) at ``S_0``, ``2 S_0``, ``4 S_0``, ...
-substeps per frame, sharing only the force evaluation (:func:`springsim.forces.eval_forces`) with
-springsim's integrators. Its positions are recorded at every frame. The finest level is the reference;
+substeps per frame, sharing only the force evaluation (:func:`springsim.forces.eval_forces`, compiled
+when numba is installed: the same forces to round-off) with springsim's integrators. Its positions are recorded at every frame. The finest level is the reference;
 the largest difference between the two finest levels (RMS over particles, max over the recorded frames)
 is its **floor**: errors below it cannot be told from the reference's own uncertainty. A refinement
 ladder converges when those differences shrink level by level (about 4x per halving for a second-order
@@ -77,8 +77,8 @@ class VerletRun:
         self.terms = make_force_terms(model)
         s = model.state() if state is None else state
         self.q, self.v = s.particle_q.copy(), s.particle_qd.copy()
-        self.fixed = model.particle_fixed
-        self.inv_mass = np.where(self.fixed, 0.0, 1.0 / model.particle_mass)[:, None]
+        self.fixed = np.flatnonzero(model.particle_fixed)
+        self.inv_mass = np.where(model.particle_fixed, 0.0, 1.0 / model.particle_mass)[:, None]
         self.f, self.a, self.tmp = np.zeros_like(self.q), np.zeros_like(self.q), np.zeros_like(self.q)
         self.h = float(h)
         self.steps, self.cpu, self.wall = 0, 0.0, 0.0

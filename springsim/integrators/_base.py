@@ -152,6 +152,7 @@ class Integrator(ABC):
         self.terms = make_force_terms(model, kernels=force_kernels) if terms is None else list(terms)
         self.free = model.free_particles
         self.fixed = model.particle_fixed
+        self._fixed_index = np.flatnonzero(self.fixed)  # an index array: several times faster than the mask
         self._inv_mass = np.where(self.fixed, 0.0, 1.0 / model.particle_mass)[:, None]
         self._f = np.zeros((model.particle_count, 3))
         self._a = np.zeros((model.particle_count, 3))
@@ -168,7 +169,7 @@ class Integrator(ABC):
         """
         eval_forces(self.terms, q, qd, out=self._f)
         a = np.multiply(self._f, self._inv_mass, out=self._a)
-        a[self.fixed] = 0.0  # not inf * 0 = NaN when a force overflows on a fixed particle
+        a[self._fixed_index] = 0.0  # not inf * 0 = NaN when a force overflows on a fixed particle
         return a
 
     def blowup_hint(self) -> str:
