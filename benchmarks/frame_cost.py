@@ -634,8 +634,8 @@ def markdown(summaries: list[dict], rows: list[dict], target: float) -> str:
     """The summary and per-run tables of ``results/frame_cost.md``."""
     s_rows = [{**r, "err": _err_text(r), "se_err": _err_text(r, "se_err_rms", "se_below_floor", "-")}
               for r in summaries]
-    c_rows = [{**r, "err": _err_text(r), "cpu_per_frame_s": _err_text(r, "cpu_per_frame_s", "-", "cost_lower_bound")}
-              for r in rows]
+    c_rows = [{**r, "err": _err_text(r),
+               "cpu_per_frame_s": _err_text(r, "cpu_per_frame_s", "-", "cost_lower_bound")} for r in rows]
     s_cols = ["n", "ke", "dofs", "frames", "floor", "config", "err", "cpu_per_frame_s", "wall_per_frame_s", "se_substeps",
               "se_err", "se_cpu_per_frame_s", "se_wall_per_frame_s", "cpu_ratio_to_se", "load_start", "load_end"]
     c_cols = ["n", "role", "config", "frames_run", "err", "err_frame", "err_final", "err_raw", "diff_to_next",
