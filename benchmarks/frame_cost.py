@@ -104,7 +104,8 @@ COLUMNS = ["n", "ke", "dofs", "frames", "window_s", "target", "ref_method", "ref
 CANDIDATE_COLUMNS = ["n", "role", "config", "method", "solver", "h", "steps_per_frame", "steps", "frames_run",
                      "probe_frame_s", "probe_cpu_frame_s", "wall_s", "cpu_s", "wall_per_frame_s", "cpu_per_frame_s",
                      "cost_lower_bound", "err_rms", "below_floor", "err_lower_bound", "err_frame", "err_final",
-                     "err_raw", "floor", "diff_to_next", "newton_per_step", "linear_per_step", "newton_failures", "status"]
+                     "err_raw", "floor", "diff_to_next", "newton_per_step", "linear_per_step", "newton_failures",
+                     "status"]
 
 #: Default candidates, ``method:1/h:solver``.
 DEFAULT_CANDIDATES = ("linearized_implicit:60:auto", "linearized_implicit:120:auto", "linearized_implicit:240:auto",
