@@ -7,9 +7,10 @@ stable for ``h omega_max < 2``, one force evaluation per substep) at ``S_0``, ``
 substeps per frame, sharing only the force evaluation (:func:`springsim.forces.eval_forces`, compiled
 when numba is installed: the same forces to round-off) with springsim's integrators. Its positions are
 recorded at every frame. The finest level is the reference; the largest difference between the two
-finest levels (RMS over particles, max over the recorded frames) is its **floor**: errors below it cannot be told from the reference's own uncertainty. A refinement
-ladder converges when those differences shrink level by level (about 4x per halving for a second-order
-method while the motion is smooth; on a buckling cloth they can stall at the amplified round-off and
+finest levels (RMS over particles, max over the recorded frames) is its **floor**: errors below it
+cannot be told from the reference's own uncertainty. A refinement ladder converges when those
+differences shrink level by level (about 4x per halving for a second-order method while the motion
+is smooth; on a buckling cloth they can stall at the amplified round-off and
 truncation noise, which is exactly what the floor reports).
 
 :func:`reference_frames` also runs :func:`springsim.reference.reference_trajectory` (scipy ``solve_ivp``:
