@@ -53,12 +53,18 @@ time depends on the other jobs (the load average is recorded with every size); t
 CPU time much less, so "cheapest" is decided on CPU time. A run stopped early is costed over the
 frames it ran (the early, pre-buckling frames, where Newton methods need fewer iterations).
 
+Forces: ``--force-kernels`` (default ``auto``) chooses the force evaluation of symplectic Euler and the
+candidates (:func:`springsim.forces.make_force_terms`: the compiled spring pass of the ``accel`` extra, or
+``numpy``); the summary records what it resolved to (``force_kernels``). The reference levels always
+use ``auto`` (the two passes give the same forces to round-off).
+
 Usage::
 
     export OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1
     python -m benchmarks frame-cost                                   # n = 32 64, default candidates
     python -m benchmarks frame-cost --sizes 128 --stop-above 0 --candidates linearized_implicit:120:auto
     python -m benchmarks frame-cost --quick                           # n = 6 (tests)
+    python -m benchmarks frame-cost --sizes 64 --force-kernels numpy  # the pure force path
 """
 
 from __future__ import annotations
@@ -81,7 +87,7 @@ from . import reference_cache
 from .common import RESULTS_DIR, fmt, machine_info, markdown_table, write_csv
 
 __all__ = ["COLUMNS", "CANDIDATE_COLUMNS", "DEFAULT_CANDIDATES", "DEFAULT_FRAMES", "FRAME_DT", "Candidate", "cloth",
-           "omega_max", "explicit_substeps", "run_symplectic", "verify_explicit", "parse_candidate", "Run",
+           "force_kernels_used", "omega_max", "explicit_substeps", "run_symplectic", "verify_explicit", "parse_candidate", "Run",
            "make_run", "track_errors", "measure_size", "main"]
 
 #: Frame length [s].
@@ -97,8 +103,8 @@ COLUMNS = ["n", "ke", "dofs", "frames", "window_s", "target", "ref_method", "ref
            "se_substeps", "se_h", "se_err_rms", "se_below_floor", "se_err_frame", "se_wall_per_frame_s",
            "se_cpu_per_frame_s", "se_window_finite", "se_stable", "se_window_s", "se_lower_substeps",
            "se_lower_unstable", "se_lower_detected_at_s", "cpu_ratio_to_se", "omega_max", "omega_initial",
-           "omega_deformed", "omega_gershgorin", "lanczos_steps", "substeps_computed", "load_start", "load_end",
-           "status"]
+           "omega_deformed", "omega_gershgorin", "lanczos_steps", "substeps_computed", "force_kernels", "load_start",
+           "load_end", "status"]
 
 #: Columns of the per-run CSV (reference levels, cross-check, symplectic Euler, candidates).
 CANDIDATE_COLUMNS = ["n", "role", "config", "method", "solver", "h", "steps_per_frame", "steps", "frames_run",
@@ -364,13 +370,22 @@ class Run:
                     newton_failures=sum(not x.newton_converged for x in s))
 
 
+def force_kernels_used(model, force_kernels: str) -> str:
+    """What ``force_kernels`` resolves to on ``model``: ``"numba"`` when its spring forces run compiled, else
+    ``"numpy"``."""
+    from springsim.forces import make_force_terms
+
+    used = {getattr(t, "kernels", "numpy") for t in make_force_terms(model, kernels=force_kernels)}
+    return "numba" if "numba" in used else "numpy"
+
+
 def make_run(model, cand: Candidate, options: dict):
     """A fresh run of ``cand`` from the initial state: :class:`Run` if implicit, else
     :func:`benchmarks.reference_cache.explicit_run` (``verlet`` or an explicit integrator)."""
     h = FRAME_DT / cand.steps_per_frame
     if cand.implicit:
         return Run(model, cand.method, h, cand.solver, {**options, **dict(cand.options)})
-    return reference_cache.explicit_run(model, cand.method, h)
+    return reference_cache.explicit_run(model, cand.method, h, options.get("force_kernels", "auto"))
 
 
 def per_frame(run, seconds: float, frame_dt: float = FRAME_DT) -> float:
@@ -449,7 +464,7 @@ def measure_size(n: int, a, log=print) -> tuple[dict, list[dict]]:
     frames = a.frames
     window = frames * FRAME_DT
     log(f"n={n}: {dofs} DOFs, {model.spring_count} springs, window {frames} frames ({window:.4g} s), "
-        f"load {load_start}")
+        f"force kernels {force_kernels_used(model, a.force_kernels)}, load {load_start}")
     asm = SystemAssembler(model, make_force_terms(model))
     om0 = omega_max(asm, model.particle_q, model.particle_qd)
     S0 = explicit_substeps(om0["omega"])
@@ -495,7 +510,8 @@ def measure_size(n: int, a, log=print) -> tuple[dict, list[dict]]:
                    ref_diffs=" ".join(f"{d:.3g}" for d in diffs), ref_median_ratios=" ".join(f"{r:.3g}" for r in med),
                    ref_pair_diff=ref.floor, xcheck_method=xmethod, xcheck_diff=xdiff if xmethod else "", floor=floor,
                    ref_usable=usable, ref_cpu_s=sum(ref.cpu_s), omega_initial=om0["omega"],
-                   omega_gershgorin=om0["gershgorin"], lanczos_steps=om0["steps"], load_start=load_start)
+                   omega_gershgorin=om0["gershgorin"], lanczos_steps=om0["steps"], load_start=load_start,
+                   force_kernels=force_kernels_used(model, a.force_kernels))
 
     def error_row(run, res, row):
         late = res.get("out_of_time", False)
@@ -523,7 +539,7 @@ def measure_size(n: int, a, log=print) -> tuple[dict, list[dict]]:
     om = max(om0["omega"], omd["omega"] if omd else 0.0)
     ex = verify_explicit(model, om, window=a.explicit_window, max_steps=a.explicit_max_steps, lower=a.lower)
     se_cand = Candidate("symplectic_euler", ex["substeps"] / FRAME_DT, "none")
-    se_run = make_run(model, se_cand, {})
+    se_run = make_run(model, se_cand, {"force_kernels": a.force_kernels})
     se = track_errors(se_run, ex["substeps"], ref.q)
     se_row = error_row(se_run, se, dict(n=n, role="explicit", config=se_cand.label, method=se_cand.method,
                                         solver="none", h=se_run.h, steps_per_frame=ex["substeps"]))
@@ -544,7 +560,8 @@ def measure_size(n: int, a, log=print) -> tuple[dict, list[dict]]:
     gc.collect()
 
     # 3. candidates: probe, then run in order of the probe's cost
-    cand_opts = dict(newton_maxiter=a.newton_maxiter, solver_options={"rtol": a.linear_rtol})
+    cand_opts = dict(newton_maxiter=a.newton_maxiter, solver_options={"rtol": a.linear_rtol},
+                     force_kernels=a.force_kernels)
     budget_end = t_start + a.budget
     probes = []
     for c in a.candidates:
@@ -684,6 +701,9 @@ def main(argv=None) -> int:
     p.add_argument("--explicit-window", type=float, default=0.1, help="symplectic Euler verification window [s]")
     p.add_argument("--explicit-max-steps", type=int, default=2000, help="cap on verification substeps")
     p.add_argument("--lower", type=float, default=0.7, help="fraction of the substep count that must fail")
+    p.add_argument("--force-kernels", default="auto", choices=("auto", "numba", "numpy"),
+                   help="force evaluation of symplectic Euler and the candidates (default auto: the compiled pass "
+                        "when numba is installed; the reference always uses auto)")
     p.add_argument("--append", action="store_true",
                    help="keep the rows of other sizes already in the output CSVs (a size run again is replaced)")
     p.add_argument("--quick", action="store_true", help="n = 6, three candidates (tests)")

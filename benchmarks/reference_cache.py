@@ -72,10 +72,10 @@ class VerletRun:
 
     method = "verlet"
 
-    def __init__(self, model, h: float, state=None):
+    def __init__(self, model, h: float, state=None, force_kernels: str = "auto"):
         from springsim.forces import make_force_terms
 
-        self.terms = make_force_terms(model)
+        self.terms = make_force_terms(model, kernels=force_kernels)
         s = model.state() if state is None else state
         self.q, self.v = s.particle_q.copy(), s.particle_qd.copy()
         self.fixed = np.flatnonzero(model.particle_fixed)
@@ -118,11 +118,11 @@ class VerletRun:
 class ExplicitRun(VerletRun):
     """A registered explicit springsim integrator (``symplectic_euler``, ...) with the interface of :class:`VerletRun`."""
 
-    def __init__(self, model, method: str, h: float, state=None):
+    def __init__(self, model, method: str, h: float, state=None, force_kernels: str = "auto"):
         from springsim.integrators import make_integrator
 
         self.method = method
-        self.integ = make_integrator(method, model)
+        self.integ = make_integrator(method, model, force_kernels=force_kernels)
         self.s0 = model.state() if state is None else state
         self.s1 = model.state()
         self.h = float(h)
@@ -152,9 +152,12 @@ class ExplicitRun(VerletRun):
 SOLVE_IVP_METHODS = ("Radau", "BDF", "LSODA", "DOP853", "RK45")
 
 
-def explicit_run(model, method: str, h: float):
-    """:class:`VerletRun` for ``verlet``, else :class:`ExplicitRun`."""
-    return VerletRun(model, h) if method == "verlet" else ExplicitRun(model, method, h)
+def explicit_run(model, method: str, h: float, force_kernels: str = "auto"):
+    """:class:`VerletRun` for ``verlet``, else :class:`ExplicitRun` (``force_kernels``: see
+    :func:`springsim.forces.make_force_terms`)."""
+    if method == "verlet":
+        return VerletRun(model, h, force_kernels=force_kernels)
+    return ExplicitRun(model, method, h, force_kernels=force_kernels)
 
 
 def reference_frames(model, method: str, substeps: int, frames: int, *, frame_dt: float = FRAME_DT,

@@ -13,8 +13,10 @@ comparison with the target means nothing there. Writes ``results/stiffness_sweep
 where the method did not reach the target). The frame-cost runs of every ``(n, ke)`` are kept in
 ``results/stiffness_sweep/ke<ke>/`` and their references cached as usual. ``--merge`` joins the rows of
 earlier sweeps (their ``stiffness_sweep.csv``, e.g. ``docs/stiffness_sweep.csv``, the data of the plot in
-BENCHMARKS.md) with this run's, which replace those of the same ``(n, ke, method)``, so that sizes run
-apart end up in one table and one plot.
+BENCHMARKS.md) with this run's, which replace those of the same ``(n, ke, method, force_kernels)``, so that
+sizes run apart end up in one table and one plot. ``--force-kernels`` is frame-cost's (default ``auto``:
+the compiled spring force pass when numba is installed); each row records what its forces ran on, and
+rows with compiled forces are their own lines in the plot ("(compiled forces)").
 
 Usage::
 
@@ -35,7 +37,8 @@ from .common import RESULTS_DIR, fmt, markdown_table, pyplot, save_figure, write
 
 __all__ = ["COLUMNS", "DEFAULT_CANDIDATES", "best_per_method", "main"]
 
-COLUMNS = ["n", "ke", "method", "config", "reached", "decidable", "err_rms", "cpu_per_frame_s", "floor", "se_substeps"]
+COLUMNS = ["n", "ke", "method", "config", "reached", "decidable", "err_rms", "cpu_per_frame_s", "floor", "se_substeps",
+           "force_kernels"]
 
 #: Implicit configurations tried at every stiffness (``method:1/h:solver``).
 DEFAULT_CANDIDATES = ("linearized_implicit:60:auto", "linearized_implicit:240:auto", "tr_bdf2:60:auto",
@@ -48,19 +51,30 @@ def _rows(path: Path) -> list[dict]:
 
 
 def load(path: Path, target: float) -> list[dict]:
-    """The rows of a ``stiffness_sweep.csv``, typed as :func:`best_per_method` gives them."""
+    """The rows of a ``stiffness_sweep.csv``, typed as :func:`best_per_method` gives them (rows written before
+    the compiled force pass existed have ``force_kernels`` ``"numpy"``)."""
     return [{**r, "n": int(r["n"]), "ke": float(r["ke"]), "reached": r["reached"] == "True",
+             "force_kernels": r.get("force_kernels") or "numpy",
              "decidable": r["decidable"] == "True" if "decidable" in r else float(r["floor"]) < target,
              "err_rms": float(r["err_rms"]), "cpu_per_frame_s": float(r["cpu_per_frame_s"]),
              "floor": float(r["floor"])} for r in _rows(path)]
 
 
+def _key(r: dict) -> tuple:
+    return r["n"], r["ke"], r["method"], r.get("force_kernels") or "numpy"
+
+
 def merge(earlier: list[dict], rows: list[dict]) -> list[dict]:
     """``earlier`` and ``rows`` in one list, a row of ``rows`` replacing one of ``earlier`` with its
-    ``(n, ke, method)``; sorted by n, method, ke."""
-    out = {(r["n"], r["ke"], r["method"]): r for r in earlier}
-    out.update({(r["n"], r["ke"], r["method"]): r for r in rows})
-    return sorted(out.values(), key=lambda r: (r["n"], r["method"], r["ke"]))
+    ``(n, ke, method, force_kernels)``; sorted by n, method, force kernels, ke."""
+    out = {_key(r): r for r in earlier}
+    out.update({_key(r): r for r in rows})
+    return sorted(out.values(), key=lambda r: (r["n"], r["method"], r.get("force_kernels") or "numpy", r["ke"]))
+
+
+def label(r: dict) -> str:
+    """The plot's name of a row's line: the method, marked when its forces ran compiled."""
+    return r["method"] + (" (compiled forces)" if r.get("force_kernels") == "numba" else "")
 
 
 def best_per_method(summary: dict, runs: list[dict], target: float) -> list[dict]:
@@ -80,7 +94,8 @@ def best_per_method(summary: dict, runs: list[dict], target: float) -> list[dict
         out.append(dict(n=int(n), ke=float(ke), method=method, config=best["config"], reached=reached,
                         decidable=float(floor) < target,
                         err_rms=float(best["err_rms"]), cpu_per_frame_s=float(best["cpu_per_frame_s"]),
-                        floor=float(floor), se_substeps=summary.get("se_substeps", "")))
+                        floor=float(floor), se_substeps=summary.get("se_substeps", ""),
+                        force_kernels=summary.get("force_kernels") or "numpy"))
     return out
 
 
@@ -90,11 +105,11 @@ def plot(rows: list[dict], out_png: Path, target: float) -> bool:
         return False
     sizes = sorted({r["n"] for r in rows})
     # one colour per method in every panel
-    colors = {m: f"C{k}" for k, m in enumerate(sorted({r["method"] for r in rows}))}
+    colors = {m: f"C{k}" for k, m in enumerate(sorted({label(r) for r in rows}))}
     fig, axes = plt.subplots(1, len(sizes), figsize=(5.5 * len(sizes), 4.2), squeeze=False)
     for ax, n in zip(axes[0], sizes):
-        for method in sorted({r["method"] for r in rows if r["n"] == n}):
-            rs = sorted((r for r in rows if r["n"] == n and r["method"] == method), key=lambda r: r["ke"])
+        for method in sorted({label(r) for r in rows if r["n"] == n}):
+            rs = sorted((r for r in rows if r["n"] == n and label(r) == method), key=lambda r: r["ke"])
             line, = ax.plot([r["ke"] for r in rs], [r["cpu_per_frame_s"] for r in rs], "-", label=method,
                             color=colors[method])
             for r in rs:
@@ -129,10 +144,13 @@ def main(argv=None) -> int:
     p.add_argument("--ref-levels", type=int, default=None,
                    help="reference levels, each halving the step (default: frame-cost's, 3; with 2, as used for the "
                         "largest cloths, the floor is the two levels' difference)")
+    p.add_argument("--force-kernels", default="auto", choices=("auto", "numba", "numpy"),
+                   help="force evaluation of the measured runs (frame-cost's option; default auto)")
     p.add_argument("--quick", action="store_true", help="n = 6, ke 1e3 1e4, two candidates, 20 frames (tests)")
     p.add_argument("--replot", action="store_true", help="only redraw the plot from the CSV of an earlier run")
     p.add_argument("--merge", type=Path, nargs="*", default=[], metavar="CSV",
-                   help="join the rows of earlier sweeps' CSVs (this run's replace the same n, ke, method)")
+                   help="join the rows of earlier sweeps' CSVs (this run's replace the same n, ke, method and "
+                        "force kernels)")
     p.add_argument("--out", type=Path, default=RESULTS_DIR)
     a = p.parse_args(argv)
     if a.quick:
@@ -151,7 +169,8 @@ def main(argv=None) -> int:
     for ke in a.ke:
         d = a.out / "stiffness_sweep" / f"ke{ke:g}"
         args = ["--ke", f"{ke:g}", "--sizes", *map(str, a.sizes), "--measure-all", "--frames", str(a.frames),
-                "--target", str(a.target), "--budget", str(a.budget), "--out", str(d), "--candidates", *a.candidates]
+                "--target", str(a.target), "--budget", str(a.budget), "--out", str(d), "--force-kernels",
+                a.force_kernels, "--candidates", *a.candidates]
         if a.cross_check_max_n is not None:
             args += ["--cross-check-max-n", str(a.cross_check_max_n)]
         if a.ref_levels is not None:

@@ -34,6 +34,7 @@ def test_quick_run_writes_columns_and_verifies_the_limit(fc, tmp_path):
     r = rows[0]
     assert int(r["n"]) == 6 and int(r["dofs"]) == 3 * 6 * 5 and int(r["frames"]) == fc.DEFAULT_FRAMES
     assert r["status"] == "ok" and r["ref_usable"] == "True"
+    assert r["force_kernels"] == "numpy"  # "auto" on a cloth below ForceSpring.auto_min_pairs springs
     assert float(r["floor"]) < float(r["err_rms"]) < 0.01 and float(r["cpu_per_frame_s"]) > 0
     assert float(r["floor"]) == max(float(r["ref_pair_diff"]), float(r["xcheck_diff"]))
     assert float(r["se_err_rms"]) < 0.01 and float(r["se_cpu_per_frame_s"]) > 0 and r["se_window_finite"] == "True"
@@ -218,6 +219,21 @@ def test_parse_candidate(fc):
     assert not e.implicit and e.steps_per_frame == 20 and e.label == "verlet h=1/1200"
 
 
+def test_force_kernels_reach_the_runs(fc):
+    """``--force-kernels`` reaches symplectic Euler and the implicit candidates; the summary names what it used."""
+    from springsim._accel import numba_available
+
+    model = fc.cloth(6)
+    assert fc.force_kernels_used(model, "auto") == fc.force_kernels_used(model, "numpy") == "numpy"
+    if not numba_available():
+        return
+    assert fc.force_kernels_used(model, "numba") == "numba"
+    for text in ("symplectic_euler:600:none", "verlet:600:none", "tr_bdf2:60:direct"):
+        run = fc.make_run(model, fc.parse_candidate(text), {"force_kernels": "numba"})
+        terms = run.terms if hasattr(run, "terms") else run.integ.terms
+        assert [t.kernels for t in terms if t.name == "spring"] == ["numba"], text
+
+
 @pytest.mark.slow
 def test_stiffness_sweep_quick(tmp_path):
     """``python -m benchmarks stiffness-sweep --quick``: one row per (ke, method) with the cheapest configuration
@@ -245,7 +261,8 @@ def test_stiffness_sweep_quick(tmp_path):
 
 
 def test_stiffness_sweep_merge_replaces_same_size_stiffness_and_method():
-    """The shipped sweep data loads with its types, and a new row replaces the one of its (n, ke, method)."""
+    """The shipped sweep data loads with its types, and a new row replaces the one of its (n, ke, method,
+    force kernels)."""
     from benchmarks import stiffness_sweep as sw
 
     shipped = sw.load(Path(__file__).resolve().parents[2] / "docs" / "stiffness_sweep.csv", 0.01)
@@ -258,6 +275,11 @@ def test_stiffness_sweep_merge_replaces_same_size_stiffness_and_method():
     assert len(merged) == len(shipped) + 1
     assert [r["cpu_per_frame_s"] for r in merged if (r["n"], r["ke"], r["method"]) ==
             (new["n"], new["ke"], new["method"])] == [123.0]
+    # rows measured with the compiled force pass are their own line; the shipped rows without the column are numpy's
+    assert {r["force_kernels"] for r in shipped} <= {"numpy", "numba"}
+    compiled = {**shipped[0], "force_kernels": "numba", "cpu_per_frame_s": 1.0}
+    assert len(sw.merge(shipped, [compiled])) == len(shipped) + 1
+    assert sw.label(compiled) == compiled["method"] + " (compiled forces)" and sw.label(shipped[0]) == compiled["method"]
 
 
 def test_stiffness_sweep_passes_cross_check_limit(tmp_path, monkeypatch):
@@ -283,3 +305,7 @@ def test_stiffness_sweep_passes_cross_check_limit(tmp_path, monkeypatch):
     calls.clear()
     assert sw.main(["--sizes", "64", "--ke", "1e6", "--out", str(tmp_path)]) == 0
     assert len(calls) == 1 and "--cross-check-max-n" not in calls[0]
+    assert calls[0][calls[0].index("--force-kernels") + 1] == "auto"
+    calls.clear()
+    assert sw.main(["--sizes", "64", "--ke", "1e6", "--force-kernels", "numpy", "--out", str(tmp_path)]) == 0
+    assert calls[0][calls[0].index("--force-kernels") + 1] == "numpy"
