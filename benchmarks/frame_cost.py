@@ -87,8 +87,8 @@ from . import reference_cache
 from .common import RESULTS_DIR, fmt, machine_info, markdown_table, write_csv
 
 __all__ = ["COLUMNS", "CANDIDATE_COLUMNS", "DEFAULT_CANDIDATES", "DEFAULT_FRAMES", "FRAME_DT", "Candidate", "cloth",
-           "force_kernels_used", "omega_max", "explicit_substeps", "run_symplectic", "verify_explicit", "parse_candidate", "Run",
-           "make_run", "track_errors", "measure_size", "main"]
+           "force_kernels_used", "omega_max", "explicit_substeps", "run_symplectic", "verify_explicit",
+           "parse_candidate", "Run", "make_run", "track_errors", "measure_size", "main"]
 
 #: Frame length [s].
 FRAME_DT = 1.0 / 60.0

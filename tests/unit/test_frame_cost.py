@@ -279,7 +279,8 @@ def test_stiffness_sweep_merge_replaces_same_size_stiffness_and_method():
     assert {r["force_kernels"] for r in shipped} <= {"numpy", "numba"}
     compiled = {**shipped[0], "force_kernels": "numba", "cpu_per_frame_s": 1.0}
     assert len(sw.merge(shipped, [compiled])) == len(shipped) + 1
-    assert sw.label(compiled) == compiled["method"] + " (compiled forces)" and sw.label(shipped[0]) == compiled["method"]
+    assert sw.label(compiled) == compiled["method"] + " (compiled forces)"
+    assert sw.label(shipped[0]) == compiled["method"]
 
 
 def test_stiffness_sweep_passes_cross_check_limit(tmp_path, monkeypatch):
