@@ -71,6 +71,8 @@ class EnergyBound:
         self._unbounded = [t for t, f in zip(terms, floors) if not np.isfinite(f)]
         floor = sum(f for f in floors if np.isfinite(f))  # <= 0
         self._mass = model.particle_mass
+        self._sqrt_mass = np.repeat(np.sqrt(self._mass), 3).reshape(-1, 3)
+        self._scaled = np.empty_like(self._sqrt_mass)
         parts = [float(t.potential_energy(q0)) for t in terms]
         t0 = float(kinetic_energy(model, qd0))
         self.e0 = t0 + sum(parts)
@@ -82,8 +84,11 @@ class EnergyBound:
 
     def work(self, q: np.ndarray, qd: np.ndarray) -> float:
         """``W = T + V_gravity`` [J] of a state."""
-        return float(0.5 * np.einsum("i,ij,ij->", self._mass, qd, qd) + sum(t.potential_energy(q)
-                                                                             for t in self._unbounded))
+        # T = |sqrt(m) qd|^2 / 2: one elementwise product into a buffer and one dot, several times faster than a
+        # three-operand einsum on large states (it runs after every step)
+        v = np.multiply(qd, self._sqrt_mass, out=self._scaled).reshape(-1)
+        kinetic = 0.5 * float(np.dot(v, v))
+        return kinetic + float(sum(t.potential_energy(q) for t in self._unbounded))
 
     def exceeded(self, q: np.ndarray, qd: np.ndarray) -> float | None:
         """``W`` when it is above the limit (or not a number: the sums overflowed), else None."""

@@ -279,3 +279,24 @@ def test_atomic_write_failure_keeps_previous_file(tmp_path, monkeypatch):
         save_npz_atomic(out, q=np.zeros(6))
     assert out.read_bytes() == before
     assert os.listdir(tmp_path) == ["out.npz"]
+
+
+def test_energy_bound_work_is_kinetic_plus_gravity():
+    """The bound's W (computed from a scaled copy of the velocities after every step) is T + V_gravity of
+    springsim.energy; a NaN velocity is never within the bound."""
+    from springsim.energy import kinetic_energy, potential_energy
+    from springsim.forces import ForceGravity
+
+    b = ModelBuilder()
+    b.add_cloth_grid(7, 5, pin="top")
+    m = b.finalize()
+    rng = np.random.default_rng(5)
+    q = m.particle_q + rng.normal(scale=0.1, size=m.particle_q.shape)
+    qd = rng.normal(size=q.shape)
+    bound = EnergyBound(m, m.particle_q, m.particle_qd)
+    expected = kinetic_energy(m, qd) + potential_energy(m, q, [ForceGravity.from_model(m)])
+    assert bound.work(q, qd) == pytest.approx(expected, rel=1e-12)
+    assert bound.work(q, qd) == pytest.approx(expected, rel=1e-12)  # the buffer is reused
+    assert bound.work(q, np.zeros_like(qd)) == pytest.approx(expected - kinetic_energy(m, qd), rel=1e-12)
+    qd[3, 1] = np.nan
+    assert bound.exceeded(q, qd) is not None
