@@ -1,6 +1,7 @@
 """numba kernels of the force terms (imported only when ``kernels="numba"``, see :mod:`springsim._accel`).
 
-``cache=True`` keeps the machine code on disk between processes.
+``cache=True`` keeps the machine code on disk between processes; ``error_model="numpy"`` gives IEEE results
+(inf, NaN) where Python would raise, as the numpy path does.
 """
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ import numpy as np
 __all__ = ["spring_forces"]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def spring_forces(q, qd, pairs, ke, kd, l0, eps, out):  # pragma: no cover - compiled
     """Add every spring's force to ``out`` in one pass over the springs (:meth:`ForceSpring.eval_force`).
 

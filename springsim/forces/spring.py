@@ -29,8 +29,11 @@ Kernels: ``kernels="numba"`` (the ``accel`` extra) evaluates :meth:`ForceSpring.
 pass over the springs (:func:`springsim.forces._numba_kernels.spring_forces`), with no temporary arrays;
 ``"numpy"`` is the pure path (the incidence-matrix products above); ``"auto"`` takes the compiled pass when
 numba is installed and there are at least :attr:`ForceSpring.auto_min_pairs` springs (below that, the
-import of numba costs more than it saves). Both give the same forces to round-off (the tests check it);
-the Jacobians and the energy-momentum forms always run in numpy.
+import of numba costs more than it saves), and the numpy path when numba is installed but does not import
+(``"numba"`` then raises ``ValueError``). Both give the same forces to round-off (the tests check it), except
+that a spring shorter than ``eps`` contributes no damping force at all in the compiled pass, where the numpy
+path's zero direction times a non-finite velocity gives NaN (a state the driver stops on either way). The
+Jacobians and the energy-momentum forms always run in numpy.
 
 Jacobian modes: ``symmetric`` drops the non-symmetric damping position term;
 ``spd`` also clamps the transverse coefficient ``(l - l0)/l`` at 0 so that ``-dF/dq``
@@ -92,6 +95,13 @@ class ForceSpring(ForceTerm):
         self._kd_damped = self.kd[self.damped]
         small = kernels == "auto" and self.pairs.shape[0] < self.auto_min_pairs
         self.kernels = resolve("numpy" if small else kernels, "numpy", self.KERNELS)
+        if self.kernels == "numba":
+            try:
+                from . import _numba_kernels  # noqa: F401  (numba installed but unusable: say so now)
+            except Exception as e:  # e.g. a numba that does not support this numpy
+                if kernels != "auto":
+                    raise ValueError(f"kernels='numba': numba does not import ({type(e).__name__}: {e})") from None
+                self.kernels = "numpy"
 
     @classmethod
     def from_model(cls, model, *, skip_fixed=True, kernels="auto"):

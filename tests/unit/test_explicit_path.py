@@ -35,7 +35,8 @@ def test_incidence_gather_is_exact_and_scatter_sums():
 @pytest.mark.parametrize("kernels", KERNELS)
 @pytest.mark.parametrize("seed", range(12))
 def test_force_terms_equal_the_naive_forces(seed, kernels):
-    """Every term together gives the naive total force on every free particle, near-degenerate pairs included."""
+    """Every term together gives the naive total force on every free particle, near-degenerate pairs included
+    (coincident, closer than pair_epsilon, just farther than it)."""
     rng = np.random.default_rng(seed)
     m = random_scene(rng, n=10, springs=20, gravitational=5)
     q, qd = m.particle_q.copy(), m.particle_qd.copy()
@@ -44,6 +45,8 @@ def test_force_terms_equal_the_naive_forces(seed, kernels):
         q[j] = q[i]
         i, j = m.spring_indices[1]
         q[j] = q[i] + 1e-12
+        i, j = m.spring_indices[2]  # just above pair_epsilon: the direction (and the damping) is defined
+        q[j] = q[i] + np.array([2e-9, 0.0, 0.0])
     terms = make_force_terms(m, kernels=kernels)
     assert [t.kernels for t in terms if t.name == "spring"] == [kernels]
     f = eval_forces(terms, q, qd)
@@ -109,6 +112,16 @@ def test_force_kernels_option(monkeypatch):
     assert spring.kernels == "numpy"
     with pytest.raises(ValueError, match="kernels must be one of 'auto', 'numba', 'numpy', got 'fortran'"):
         make_force_terms(small, kernels="fortran")
+    if _accel.numba_available():  # installed but not importable (e.g. built for another numpy): "auto" falls back
+        import sys
+
+        import springsim.forces
+
+        monkeypatch.delattr(springsim.forces, "_numba_kernels", raising=False)
+        monkeypatch.setitem(sys.modules, "springsim.forces._numba_kernels", None)
+        assert [t.kernels for t in make_force_terms(large) if t.name == "spring"] == ["numpy"]
+        with pytest.raises(ValueError, match="kernels='numba': numba does not import"):
+            make_force_terms(large, kernels="numba")
     monkeypatch.setattr(_accel, "numba_available", lambda: False)
     assert [t.kernels for t in make_force_terms(large) if t.name == "spring"] == ["numpy"]
     with pytest.raises(ValueError, match=r"needs numba.*springsim\[accel\]"):

@@ -283,6 +283,25 @@ def test_stiffness_sweep_merge_replaces_same_size_stiffness_and_method():
     assert sw.label(shipped[0]) == compiled["method"]
 
 
+def test_stiffness_sweep_prefers_whole_runs_when_none_is_within():
+    """A run stopped by the budget (its error covers only its first frames) is a method's row only when the method
+    has no other; the row keeps the lower-bound flags."""
+    from benchmarks import stiffness_sweep as sw
+
+    summary = {"n": "64", "ke": "1e6", "floor": "0.001", "se_substeps": "100", "force_kernels": "numpy"}
+    se = {"role": "explicit", "method": "symplectic_euler", "status": "within target", "err_rms": "0.002",
+          "cpu_per_frame_s": "1.0", "config": "se", "err_lower_bound": "False", "cost_lower_bound": "False"}
+    late = {"role": "candidate", "method": "tr_bdf2", "status": "stopped at frame 3: over the budget",
+            "err_rms": "0.001", "cpu_per_frame_s": "5.0", "config": "late", "err_lower_bound": "True", "cost_lower_bound": "True"}
+    whole = {**late, "status": "above target", "err_rms": "0.03", "cpu_per_frame_s": "2.0", "config": "whole",
+             "err_lower_bound": "False", "cost_lower_bound": "False"}
+    rows = {r["method"]: r for r in sw.best_per_method(summary, [se, late, whole], 0.01)}
+    assert rows["symplectic_euler"]["reached"] and rows["tr_bdf2"]["config"] == "whole"
+    assert not rows["tr_bdf2"]["reached"] and not rows["tr_bdf2"]["cost_lower_bound"]
+    only = {r["method"]: r for r in sw.best_per_method(summary, [se, late], 0.01)}["tr_bdf2"]
+    assert only["config"] == "late" and only["cost_lower_bound"] and only["err_lower_bound"] and not only["reached"]
+
+
 def test_stiffness_sweep_passes_cross_check_limit(tmp_path, monkeypatch):
     """``--cross-check-max-n`` reaches every frame-cost run of the sweep (0: no solve_ivp cross-check, for
     stiffnesses where it cannot finish), and is left to frame-cost's default when not given."""
