@@ -292,7 +292,8 @@ def test_stiffness_sweep_prefers_whole_runs_when_none_is_within():
     se = {"role": "explicit", "method": "symplectic_euler", "status": "within target", "err_rms": "0.002",
           "cpu_per_frame_s": "1.0", "config": "se", "err_lower_bound": "False", "cost_lower_bound": "False"}
     late = {"role": "candidate", "method": "tr_bdf2", "status": "stopped at frame 3: over the budget",
-            "err_rms": "0.001", "cpu_per_frame_s": "5.0", "config": "late", "err_lower_bound": "True", "cost_lower_bound": "True"}
+            "err_rms": "0.001", "cpu_per_frame_s": "5.0", "config": "late", "err_lower_bound": "True",
+            "cost_lower_bound": "True"}
     whole = {**late, "status": "above target", "err_rms": "0.03", "cpu_per_frame_s": "2.0", "config": "whole",
              "err_lower_bound": "False", "cost_lower_bound": "False"}
     rows = {r["method"]: r for r in sw.best_per_method(summary, [se, late, whole], 0.01)}
