@@ -45,7 +45,9 @@ def integrator_class(name: str) -> type[Integrator]:
 def make_integrator(name: str, model: Model, **options) -> Integrator:
     """Build the registered integrator ``name`` for ``model`` with keyword ``options``.
 
-    Options of implicit integrators (see :class:`ImplicitIntegrator`): ``solver``, ``jacobian``,
+    Every integrator takes ``force_kernels`` (``"auto"``, ``"numba"``, ``"numpy"``: the compiled spring force
+    pass of the ``accel`` extra or the pure path, see :func:`springsim.forces.make_force_terms`). Options of
+    implicit integrators (see :class:`ImplicitIntegrator`): ``solver``, ``jacobian``,
     ``newton_tol``, ``newton_maxiter``, ``residual_rtol``, ``on_nonconvergence``, ``solver_options``,
     ``line_search``, ``min_step``, ``escalate_jacobian``, ``escalate_after``. Options the chosen
     integrator does not use (Newton options for explicit or linearized methods) are ignored with an
