@@ -95,13 +95,16 @@ class ForceSpring(ForceTerm):
         self._kd_damped = self.kd[self.damped]
         small = kernels == "auto" and self.pairs.shape[0] < self.auto_min_pairs
         self.kernels = resolve("numpy" if small else kernels, "numpy", self.KERNELS)
+        self._compiled = None  # the compiled force pass, with kernels="numba"
         if self.kernels == "numba":
             try:
-                from . import _numba_kernels  # noqa: F401  (numba installed but unusable: say so now)
-            except Exception as e:  # e.g. a numba that does not support this numpy
+                from ._numba_kernels import spring_forces
+            except Exception as e:  # numba installed but unusable, e.g. built for another numpy: say so now
                 if kernels != "auto":
                     raise ValueError(f"kernels='numba': numba does not import ({type(e).__name__}: {e})") from None
                 self.kernels = "numpy"
+            else:
+                self._compiled = spring_forces
 
     @classmethod
     def from_model(cls, model, *, skip_fixed=True, kernels="auto"):
@@ -141,10 +144,8 @@ class ForceSpring(ForceTerm):
         self.incidence.scatter(f, f_out)
 
     def eval_force(self, q, qd, f_out):
-        if self.kernels == "numba":
-            from ._numba_kernels import spring_forces
-
-            spring_forces(q, qd, self.pairs, self.ke, self.kd, self.l0, self.eps, f_out)
+        if self._compiled is not None:
+            self._compiled(q, qd, self.pairs, self.ke, self.kd, self.l0, self.eps, f_out)
             return
         # elastic: f = -k (1 - l0/max(l, eps)) d, no direction vector needed
         d = self.incidence.diff(q)
