@@ -467,8 +467,9 @@ def measure_size(n: int, a, log=print) -> tuple[dict, list[dict]]:
     dofs = 3 * int(model.free_particles.size)
     frames = a.frames
     window = frames * FRAME_DT
+    kernels = force_kernels_used(model, a.force_kernels)
     log(f"n={n}: {dofs} DOFs, {model.spring_count} springs, window {frames} frames ({window:.4g} s), "
-        f"force kernels {force_kernels_used(model, a.force_kernels)}, load {load_start}")
+        f"force kernels {kernels}, load {load_start}")
     asm = SystemAssembler(model, make_force_terms(model))
     om0 = omega_max(asm, model.particle_q, model.particle_qd)
     S0 = explicit_substeps(om0["omega"])
@@ -515,7 +516,7 @@ def measure_size(n: int, a, log=print) -> tuple[dict, list[dict]]:
                    ref_pair_diff=ref.floor, xcheck_method=xmethod, xcheck_diff=xdiff if xmethod else "", floor=floor,
                    ref_usable=usable, ref_cpu_s=sum(ref.cpu_s), omega_initial=om0["omega"],
                    omega_gershgorin=om0["gershgorin"], lanczos_steps=om0["steps"], load_start=load_start,
-                   force_kernels=force_kernels_used(model, a.force_kernels))
+                   force_kernels=kernels)
 
     def error_row(run, res, row):
         late = res.get("out_of_time", False)
