@@ -54,7 +54,7 @@ def load(path: Path, target: float) -> list[dict]:
     """The rows of a ``stiffness_sweep.csv``, typed as :func:`best_per_method` gives them (rows written before
     the compiled force pass existed have ``force_kernels`` ``"numpy"``)."""
     return [{**r, "n": int(r["n"]), "ke": float(r["ke"]), "reached": r["reached"] == "True",
-             "force_kernels": r.get("force_kernels") or "numpy",
+             "force_kernels": _kernels(r),
              "err_lower_bound": r.get("err_lower_bound") == "True",
              "cost_lower_bound": r.get("cost_lower_bound") == "True",
              "decidable": r["decidable"] == "True" if "decidable" in r else float(r["floor"]) < target,
@@ -62,8 +62,13 @@ def load(path: Path, target: float) -> list[dict]:
              "floor": float(r["floor"])} for r in _rows(path)]
 
 
+def _kernels(r: dict) -> str:
+    """A row's force kernels; rows from before the column existed ran on numpy."""
+    return r.get("force_kernels") or "numpy"
+
+
 def _key(r: dict) -> tuple:
-    return r["n"], r["ke"], r["method"], r.get("force_kernels") or "numpy"
+    return r["n"], r["ke"], r["method"], _kernels(r)
 
 
 def merge(earlier: list[dict], rows: list[dict]) -> list[dict]:
@@ -71,12 +76,12 @@ def merge(earlier: list[dict], rows: list[dict]) -> list[dict]:
     ``(n, ke, method, force_kernels)``; sorted by n, method, force kernels, ke."""
     out = {_key(r): r for r in earlier}
     out.update({_key(r): r for r in rows})
-    return sorted(out.values(), key=lambda r: (r["n"], r["method"], r.get("force_kernels") or "numpy", r["ke"]))
+    return sorted(out.values(), key=lambda r: (r["n"], r["method"], _kernels(r), r["ke"]))
 
 
 def label(r: dict) -> str:
     """The plot's name of a row's line: the method, marked when its forces ran compiled."""
-    return r["method"] + (" (compiled forces)" if r.get("force_kernels") == "numba" else "")
+    return r["method"] + (" (compiled forces)" if _kernels(r) == "numba" else "")
 
 
 def best_per_method(summary: dict, runs: list[dict], target: float) -> list[dict]:
@@ -100,7 +105,7 @@ def best_per_method(summary: dict, runs: list[dict], target: float) -> list[dict
                         decidable=float(floor) < target,
                         err_rms=float(best["err_rms"]), cpu_per_frame_s=float(best["cpu_per_frame_s"]),
                         floor=float(floor), se_substeps=summary.get("se_substeps", ""),
-                        force_kernels=summary.get("force_kernels") or "numpy",
+                        force_kernels=_kernels(summary),
                         err_lower_bound=best.get("err_lower_bound") == "True",
                         cost_lower_bound=best.get("cost_lower_bound") == "True"))
     return out
