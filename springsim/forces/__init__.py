@@ -34,11 +34,18 @@ def make_force_terms(model, *, skip_fixed: bool = True, kernels: str = "auto") -
 
 
 def eval_forces(terms, q, qd, out: np.ndarray | None = None) -> np.ndarray:
-    """Total force (N, 3) [N] of ``terms`` at ``(q, qd)``."""
-    f = np.zeros_like(q) if out is None else out
-    if out is not None:
+    """Total force (N, 3) [N] of ``terms`` at ``(q, qd)``.
+
+    The sum starts from the first term's :meth:`~ForceTerm.constant_force` when it has one (a copy, where
+    zeroing and adding would be two passes; the result is the same, ``0 + x = x``).
+    """
+    f = np.empty_like(q) if out is None else out
+    start = terms[0].constant_force() if terms else None
+    if start is None:
         f.fill(0.0)
-    for t in terms:
+    else:
+        np.copyto(f, start)
+    for t in (terms[1:] if start is not None else terms):
         t.eval_force(q, qd, f)
     return f
 

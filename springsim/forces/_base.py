@@ -174,6 +174,13 @@ class ForceTerm(ABC):
         the assembler declares its matrix symmetric only when every term is."""
         return True
 
+    def constant_force(self) -> np.ndarray | None:
+        """The term's force (N, 3) [N] if it does not depend on the state (uniform gravity), else None.
+
+        :func:`springsim.forces.eval_forces` starts the sum from it instead of from zero (one pass less).
+        """
+        return None
+
     def potential_energy(self, q: np.ndarray) -> float:
         """Potential energy [J] at ``q`` (0 for dissipative terms)."""
         return 0.0

@@ -28,6 +28,9 @@ class ForceGravity(ForceTerm):
     def eval_force(self, q, qd, f_out):
         f_out += self._force
 
+    def constant_force(self):
+        return self._force
+
     def potential_energy(self, q):
         return float(-np.sum(self._force * q))
 

@@ -103,6 +103,59 @@ def test_compiled_cloth_trajectory_equals_the_pure_one():
     np.testing.assert_allclose(runs[1].qd[-1], runs[0].qd[-1], rtol=0, atol=1e-9)
 
 
+@needs_numba
+def test_compiled_symplectic_update_equals_the_numpy_update():
+    """With the compiled force pass symplectic Euler also updates in one compiled pass. Given the same forces
+    (masses not a power of two) it gives the numpy update's state (the same IEEE operations in the same
+    order; compared to a few ulps), and a fixed particle whose force overflowed keeps its velocity (no
+    inf * 0 = NaN)."""
+    m = benchmark_cloth(24, kd=0.05, total_mass=0.7)
+    compiled = make_integrator("symplectic_euler", m, force_kernels="numba")
+    plain = make_integrator("symplectic_euler", m, force_kernels="numba")
+    plain._update = None  # the numpy update after the same compiled forces
+    assert compiled._update is not None
+    assert make_integrator("symplectic_euler", m, force_kernels="numpy")._update is None
+    rng = np.random.default_rng(5)
+    s = m.state()
+    s.particle_q += 0.01 * rng.standard_normal(s.particle_q.shape)
+    s.particle_qd += rng.standard_normal(s.particle_qd.shape)
+    h = 1e-4
+    outs = [m.state(), m.state()]
+    for integ, out in zip((plain, compiled), outs):
+        integ.step(s, out, h)
+    a = eval_forces(compiled.terms, s.particle_q, s.particle_qd) * compiled._inv_mass
+    ulp = np.finfo(float).eps
+    dv = np.abs(s.particle_qd) + np.abs(a * h)
+    assert np.all(np.abs(outs[1].particle_qd - outs[0].particle_qd) <= 4 * ulp * dv)
+    dq = np.abs(s.particle_q) + h * (dv + np.abs(outs[0].particle_qd))
+    assert np.all(np.abs(outs[1].particle_q - outs[0].particle_q) <= 4 * ulp * dq)
+    pinned = int(np.flatnonzero(m.particle_fixed)[0])
+    s.particle_q[pinned] = 1e306  # its springs' forces overflow to inf
+    with np.errstate(over="ignore", invalid="ignore"):
+        for integ, out in zip((plain, compiled), outs):
+            integ.step(s, out, h)
+            np.testing.assert_array_equal(out.particle_qd[pinned], s.particle_qd[pinned])
+            assert np.isfinite(out.particle_q[pinned]).all()
+
+
+def test_eval_forces_starts_from_the_constant_force():
+    """The sum starts from gravity's constant force (one pass less) and equals the sum from zero."""
+    m = benchmark_cloth(8, kd=0.1)
+    terms = make_force_terms(m)
+    assert terms[0].constant_force() is not None and all(t.constant_force() is None for t in terms[1:])
+    rng = np.random.default_rng(2)
+    q = m.particle_q + 0.01 * rng.standard_normal(m.particle_q.shape)
+    qd = rng.standard_normal(q.shape)
+    ref = np.zeros_like(q)
+    for t in terms:
+        t.eval_force(q, qd, ref)
+    out = np.full_like(q, np.nan)
+    assert eval_forces(terms, q, qd, out=out) is out
+    np.testing.assert_array_equal(out, ref)
+    np.testing.assert_array_equal(eval_forces(terms[1:], q, qd), ref - terms[0].constant_force())
+    np.testing.assert_array_equal(eval_forces([], q, qd), np.zeros_like(q))
+
+
 def test_force_kernels_option(monkeypatch):
     """"auto" compiles only from ForceSpring.auto_min_pairs springs on and only with numba; bad values and
     "numba" without numba are clear errors; the core works without numba."""
