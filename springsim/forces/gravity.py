@@ -32,7 +32,8 @@ class ForceGravity(ForceTerm):
         return self._force
 
     def potential_energy(self, q):
-        return float(-np.sum(self._force * q))
+        # -sum(F . q) as one dot product: no temporary (it runs after every step, in the energy bound)
+        return -float(np.dot(self._force.ravel(), np.ravel(q)))
 
     def potential_floor(self) -> float:
         return -np.inf if np.any(self._force) else 0.0
