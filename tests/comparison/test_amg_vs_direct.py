@@ -53,6 +53,34 @@ def test_hierarchy_reuse_and_warm_start_do_not_change_the_result():
     _, q_fresh, integ_fresh = _final_q("amg-cg", steps=40, rtol=1e-9, reuse=False, warm_start=False)
     assert _rel(q_reuse, q_fresh, q_fresh - model.particle_q) < 1e-6
     assert integ_fresh.solver.preconditioner.builds == 40
+    assert integ.solver.preconditioner.builds < 40
+
+
+@pytest.mark.parametrize("method", ["implicit_euler", "tr_bdf2"])
+@pytest.mark.parametrize("option", ["reuse", "warm_start"])
+def test_hierarchy_reuse_and_warm_start_keep_the_newton_trajectory(method, option):
+    """Inside Newton (16 x 16 cloth, 15 frames of 1/60 s, Newton tolerance 1e-8, AMG-CG rtol 1e-10): reusing a
+    hierarchy across the Newton iterations and steps (``nearby``), and warm-starting CG, each on its own
+    against the plain solve, give the same frames to 1e-9 m and Newton iteration counts within one."""
+    model = benchmark_cloth(16)
+    runs = {}
+    for on in (True, False):
+        opts = {"rtol": 1e-10, "reuse": False, "warm_start": False, option: on}
+        integ = make_integrator(method, model, solver="amg-cg", jacobian="spd", newton_tol=1e-8, newton_maxiter=50,
+                                solver_options=opts)
+        tr = simulate(model, integ, BENCHMARK_DT, 15)
+        assert all(st.ok and st.newton_converged for st in tr.stats)
+        solves = sum(st.newton_iterations for st in tr.stats)
+        amg = integ.solver.preconditioner.describe()
+        if option == "reuse" and on:  # the reuse really happened
+            assert amg["builds"] < solves / 2 and amg["nearby_reuses"] > 0, (amg, solves)
+        elif option == "reuse":
+            assert amg["nearby_reuses"] == 0
+        runs[on] = tr
+    assert np.abs(runs[False].q[-1] - model.particle_q).max() > 0.1  # it fell
+    np.testing.assert_allclose(runs[True].q, runs[False].q, rtol=0, atol=1e-9)
+    its = [[st.newton_iterations for st in runs[on].stats] for on in (True, False)]
+    assert np.max(np.abs(np.subtract(*its))) <= 1
 
 
 def test_hierarchy_is_reused_for_slowly_changing_matrices():

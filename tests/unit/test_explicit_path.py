@@ -9,6 +9,7 @@ from springsim.forces import ForceSpring, eval_forces, make_force_terms
 from springsim.forces._base import PairIncidence
 from springsim.forces.naive import naive_forces
 from springsim.scene import benchmark_cloth
+from springsim.scene.gallery import BENCHMARK_DT
 
 # the pure path, and the compiled force pass of the `accel` extra (the test extra installs numba, so CI runs both)
 needs_numba = pytest.mark.skipif(not _accel.numba_available(), reason="numba (the accel extra) is not installed")
@@ -101,6 +102,39 @@ def test_compiled_cloth_trajectory_equals_the_pure_one():
     assert np.abs(runs[0].q[-1] - m.particle_q).max() > 1e-3  # it moved
     np.testing.assert_allclose(runs[1].q[-1], runs[0].q[-1], rtol=0, atol=1e-12)
     np.testing.assert_allclose(runs[1].qd[-1], runs[0].qd[-1], rtol=0, atol=1e-9)
+
+
+@needs_numba
+@pytest.mark.parametrize("method", ["explicit_euler", "midpoint"])
+def test_compiled_forces_keep_the_other_explicit_trajectories(method):
+    """200 steps of a damped 24 x 24 cloth with the other explicit integrators: compiled and numpy forces give
+    the same trajectory to round-off."""
+    m = benchmark_cloth(24, kd=0.05)
+    dt, steps = 2e-5, 200
+    runs = [simulate(m, make_integrator(method, m, force_kernels=k), dt, steps, record=False)
+            for k in ("numpy", "numba")]
+    assert np.abs(runs[0].q[-1] - m.particle_q).max() > 1e-6  # it moved
+    np.testing.assert_allclose(runs[1].q[-1], runs[0].q[-1], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(runs[1].qd[-1], runs[0].qd[-1], rtol=0, atol=1e-9)
+
+
+@needs_numba
+@pytest.mark.parametrize("method", ["implicit_euler", "tr_bdf2"])
+def test_compiled_forces_keep_the_implicit_trajectories(method):
+    """20 frames of a damped 24 x 24 cloth with Newton (direct solver, tolerance 1e-10) at h = 1/60 s: compiled
+    and numpy forces give the same frames to 1e-10 m (the forces agree to round-off; a Newton iteration more
+    or less moves a state by about the tolerance times h) and the same Newton iteration counts within one."""
+    m = benchmark_cloth(24, kd=0.05)
+    runs = {}
+    for k in ("numpy", "numba"):
+        integ = make_integrator(method, m, solver="direct", newton_tol=1e-10, newton_maxiter=50, force_kernels=k)
+        assert [t.kernels for t in integ.terms if t.name == "spring"] == [k]
+        runs[k] = simulate(m, integ, BENCHMARK_DT, 20)
+        assert all(st.newton_converged for st in runs[k].stats)
+    assert np.abs(runs["numpy"].q[-1] - m.particle_q).max() > 0.05  # it fell
+    np.testing.assert_allclose(runs["numba"].q, runs["numpy"].q, rtol=0, atol=1e-10)
+    its = [[st.newton_iterations for st in runs[k].stats] for k in ("numpy", "numba")]
+    assert np.max(np.abs(np.subtract(*its))) <= 1
 
 
 @needs_numba

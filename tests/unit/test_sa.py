@@ -142,6 +142,26 @@ def test_own_setup_matches_pyamg_setup():
     assert abs(its["own"] - its["pyamg"]) <= 2, its
 
 
+def test_own_setup_keeps_the_trajectory():
+    """springsim's smoothed-aggregation setup (warm-started Lanczos, kept aggregates) against pyamg's (selected by
+    a non-empty ``sa_options``) over 10 linearized implicit steps of the 16 x 16 fall (one solve per step, rtol
+    1e-10): the same frames to 1e-9 m."""
+    from springsim.driver import simulate
+    from springsim.integrators import make_integrator
+    from springsim.scene.gallery import BENCHMARK_DT
+
+    model = benchmark_cloth(16)
+    runs = {}
+    for name, extra in (("own", {}), ("pyamg", {"sa_options": {"max_levels": 10}})):
+        integ = make_integrator("linearized_implicit", model, solver="amg-cg", jacobian="spd",
+                                solver_options={"rtol": 1e-10, **extra})
+        runs[name] = simulate(model, integ, BENCHMARK_DT, 10)
+        assert all(st.ok for st in runs[name].stats)
+        assert integ.solver.preconditioner.builds >= 2  # rebuilt along the way: the warm paths ran
+    assert np.abs(runs["own"].q[-1] - model.particle_q).max() > 0.1
+    np.testing.assert_allclose(runs["own"].q, runs["pyamg"].q, rtol=0, atol=1e-9)
+
+
 def test_non_spd_matrix_falls_back_to_pyamg_setup():
     """An indefinite matrix breaks the Lanczos estimate; the hierarchy is then pyamg's."""
     A, _, _ = _spd_system()
