@@ -37,8 +37,9 @@ def eval_forces(terms, q, qd, out: np.ndarray | None = None) -> np.ndarray:
     """Total force (N, 3) [N] of ``terms`` at ``(q, qd)``.
 
     The sum starts from the first term's :meth:`~ForceTerm.constant_force` when it has one (a copy, where
-    zeroing and adding would be two passes; the result is the same, ``0 + x = x``).
+    zeroing and adding would be two passes; the same result, as ``0 + x = x``).
     """
+    terms = terms if isinstance(terms, (list, tuple)) else list(terms)
     f = np.empty_like(q) if out is None else out
     start = terms[0].constant_force() if terms else None
     if start is None:

@@ -17,7 +17,8 @@ class ForceGravity(ForceTerm):
     def __init__(self, mass, g):
         self.mass = np.asarray(mass, dtype=np.float64)
         self.g = np.asarray(g, dtype=np.float64)
-        self._force = self.mass[:, None] * self.g
+        self._force = self.mass[:, None] * self.g + 0.0  # + 0.0: no -0.0 components (the sum starts from it)
+        self._force.setflags(write=False)  # handed out by constant_force
 
     @classmethod
     def from_model(cls, model, *, skip_fixed=True, kernels="auto"):

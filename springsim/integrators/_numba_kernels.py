@@ -20,6 +20,5 @@ def symplectic_euler_update(q, qd, f, inv_mass, fixed, h, q1, qd1):  # pragma: n
         w = inv_mass[i]
         for c in range(3):
             a = 0.0 if fixed[i] else f[i, c] * w
-            v = qd[i, c] + a * h
-            qd1[i, c] = v
-            q1[i, c] = q[i, c] + v * h
+            qd1[i, c] = qd[i, c] + a * h
+            q1[i, c] = q[i, c] + qd1[i, c] * h  # the stored velocity, as the numpy update uses
