@@ -28,4 +28,5 @@ BENCHMARKS = {
     "explicit-speed": "explicit_speed",
     "distributed": "distributed",
     "stiffness-sweep": "stiffness_sweep",
+    "explicit-limit": "explicit_limit",
 }

@@ -189,3 +189,21 @@ def test_one_entry_point(capsys):
     assert all(name in listing for name in BENCHMARKS)
     assert main(["nope"]) == 2 and "unknown benchmark 'nope'" in capsys.readouterr().err
     assert main(["blas-threads", "--n", "3", "--steps", "1", "--solver", "direct"]) == 0
+
+
+def test_explicit_limit_quick(tmp_path, capsys):
+    """explicit-limit at n = 6: a verified limit (stable at it, unstable at 0.7x), a finite window with a small
+    energy drift (the undamped cloth conserves energy; symplectic Euler's drift stays bounded), its cost."""
+    from benchmarks import explicit_limit
+
+    assert explicit_limit.main(["--quick", "--out", str(tmp_path)]) == 0
+    rows, cols = _read(tmp_path / "explicit_limit.csv")
+    assert list(cols) == explicit_limit.COLUMNS and len(rows) == 1
+    r = rows[0]
+    assert int(r["substeps"]) >= int(r["substeps_computed"]) > int(r["lower_substeps"])
+    assert r["lower_unstable"] == "True"
+    assert r["finite"] == "True" and int(r["frames"]) == 3
+    assert 0 < float(r["energy_drift"]) < 0.05 and float(r["cpu_per_frame_s"]) > 0
+    assert "| n | ke |" in capsys.readouterr().out
+    with pytest.raises(SystemExit):
+        explicit_limit.main(["--ke", "-1"])
