@@ -90,30 +90,17 @@ def test_benchmark_cloth_forces_match_at_scale(kernels):
 
 
 @needs_numba
-def test_compiled_cloth_trajectory_equals_the_pure_one():
-    """300 symplectic Euler steps of a damped 24 x 24 cloth (above the size where "auto" compiles): the
-    compiled force pass gives the pure path's trajectory to round-off."""
+@pytest.mark.parametrize("method, dt, steps, moved", [
+    ("symplectic_euler", 2e-4, 300, 1e-3), ("explicit_euler", 2e-5, 200, 1e-6), ("midpoint", 2e-5, 200, 1e-6)])
+def test_compiled_cloth_trajectory_equals_the_pure_one(method, dt, steps, moved):
+    """A damped 24 x 24 cloth (above the size where "auto" compiles) with each explicit integrator: the compiled
+    force pass (and symplectic Euler's compiled update) gives the pure path's trajectory to round-off."""
     m = benchmark_cloth(24, kd=0.05)
-    auto = make_integrator("symplectic_euler", m)
+    auto = make_integrator(method, m)
     assert [t.kernels for t in auto.terms if t.name == "spring"] == ["numba"]
-    dt, steps = 2e-4, 300
-    runs = [simulate(m, make_integrator("symplectic_euler", m, force_kernels=k), dt, steps, record=False)
-            for k in ("numpy", "numba")]
-    assert np.abs(runs[0].q[-1] - m.particle_q).max() > 1e-3  # it moved
-    np.testing.assert_allclose(runs[1].q[-1], runs[0].q[-1], rtol=0, atol=1e-12)
-    np.testing.assert_allclose(runs[1].qd[-1], runs[0].qd[-1], rtol=0, atol=1e-9)
-
-
-@needs_numba
-@pytest.mark.parametrize("method", ["explicit_euler", "midpoint"])
-def test_compiled_forces_keep_the_other_explicit_trajectories(method):
-    """200 steps of a damped 24 x 24 cloth with the other explicit integrators: compiled and numpy forces give
-    the same trajectory to round-off."""
-    m = benchmark_cloth(24, kd=0.05)
-    dt, steps = 2e-5, 200
     runs = [simulate(m, make_integrator(method, m, force_kernels=k), dt, steps, record=False)
             for k in ("numpy", "numba")]
-    assert np.abs(runs[0].q[-1] - m.particle_q).max() > 1e-6  # it moved
+    assert np.abs(runs[0].q[-1] - m.particle_q).max() > moved  # it moved
     np.testing.assert_allclose(runs[1].q[-1], runs[0].q[-1], rtol=0, atol=1e-12)
     np.testing.assert_allclose(runs[1].qd[-1], runs[0].qd[-1], rtol=0, atol=1e-9)
 
