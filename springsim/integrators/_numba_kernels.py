@@ -1,8 +1,9 @@
 """numba kernels of the explicit integrators (loaded only when the force pass is compiled, see
 :mod:`springsim._accel`).
 
-Each kernel performs the same floating-point operations in the same order as its numpy twin, so the two
-give bitwise equal states (the tests check it). ``error_model="numpy"``: IEEE results (inf, NaN) where
+Each kernel performs the same floating-point operations in the same order as its numpy twin (no fused
+multiply-add: numba contracts only under ``fastmath``), so the two give the same states (the tests compare
+them to a few ulps). ``error_model="numpy"``: IEEE results (inf, NaN) where
 Python would raise, as in numpy.
 """
 
