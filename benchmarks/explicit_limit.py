@@ -51,7 +51,8 @@ def measure(n: int, ke: float, *, frames: int, force_kernels: str = "auto", wind
     from springsim.forces import make_force_terms
 
     model = frame_cost.cloth(n, ke)
-    asm = SystemAssembler(model, make_force_terms(model))
+    terms = make_force_terms(model)  # for the assembler and the energies
+    asm = SystemAssembler(model, terms)
     om0 = frame_cost.omega_max(asm, model.particle_q, model.particle_qd)
     ex = frame_cost.verify_explicit(model, om0["omega"], window=window, max_steps=max_steps)
     S = ex["substeps"]
@@ -60,7 +61,6 @@ def measure(n: int, ke: float, *, frames: int, force_kernels: str = "auto", wind
     kernels = frame_cost.force_kernels_used(model, force_kernels)
     run = frame_cost.make_run(model, frame_cost.Candidate("symplectic_euler", S / frame_cost.FRAME_DT, "none"),
                               {"force_kernels": force_kernels})
-    terms = make_force_terms(model)
     e0 = total_energy(model, model.particle_q, model.particle_qd, terms)
     scale = float(np.sum(model.particle_mass)) * abs(float(model.gravity)) * 1.0
     drift, finite, k, t0 = 0.0, True, 0, time.perf_counter()
