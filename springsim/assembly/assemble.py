@@ -187,7 +187,7 @@ class SystemAssembler:
         return float(np.finfo(np.float64).eps * (np.abs(D).max(axis=1) / self._free_mass).max())
 
     def assemble(self, q: np.ndarray, qd: np.ndarray, a: float, b: float, mode: str = "exact", *,
-                 q_start: np.ndarray | None = None) -> SystemMatrix:
+                 q_start: np.ndarray | None = None, damping_geometry: np.ndarray | None = None) -> SystemMatrix:
         """Fill and return :attr:`matrix` = ``M - a dF/dq - b dF/dqd`` at ``(q, qd)``.
 
         Parameters
@@ -200,6 +200,9 @@ class SystemAssembler:
         q_start : ndarray (N, 3), optional
             With it, ``F`` is the energy-momentum force over the step from ``q_start`` to ``2 q - q_start``
             and ``q`` its midpoint (:meth:`~springsim.forces.ForceTerm.eval_jacobians_discrete`).
+        damping_geometry : ndarray (N, 3), optional
+            Positions at which the dissipative terms take their geometry (:meth:`~springsim.forces.ForceTerm.
+            eval_jacobians`): the implicit stages' frozen damping.
         """
         if mode not in JACOBIAN_MODES:
             raise ValueError(f"jacobian mode must be one of {', '.join(JACOBIAN_MODES)}, got {mode!r}")
@@ -209,7 +212,8 @@ class SystemAssembler:
             jq, jqd = (None, None)
             if term.layout_q is not None or term.layout_qd is not None:
                 if q_start is None:
-                    jq, jqd = term.eval_jacobians(q, qd, mode, work=self._work[id(term)])
+                    jq, jqd = term.eval_jacobians(q, qd, mode, work=self._work[id(term)],
+                                                  damping_geometry=damping_geometry)
                 else:
                     jq, jqd = term.eval_jacobians_discrete(q_start, 2.0 * q - q_start, qd, mode,
                                                            work=self._work[id(term)])
@@ -224,8 +228,9 @@ class SystemAssembler:
             _scatter_add(self._scatter, V.reshape(-1, 9), data.reshape(-1, 9))
         m = self.matrix
         m.mode = mode
-        m.symmetric = all(t.jacobian_symmetric(mode) if q_start is None else t.jacobian_symmetric_discrete(mode)
-                          for t in self.terms)
+        frozen = damping_geometry is not None
+        m.symmetric = all(t.jacobian_symmetric(mode, frozen_damping=frozen) if q_start is None
+                          else t.jacobian_symmetric_discrete(mode) for t in self.terms)
         m.positions = q[self.free]
         m.version += 1
         self.last_time_s = time.perf_counter() - t0

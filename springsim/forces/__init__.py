@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._base import JACOBIAN_MODES, BlockLayout, Blocks, ForceTerm
+from ._base import JACOBIAN_MODES, PROJECTED_MODES, BlockLayout, Blocks, ForceTerm
 from .drag import ForceDrag
 from .gravitational import ForceGravitational
 from .gravity import ForceGravity
 from .spring import ForceSpring
 
-__all__ = ["FORCE_TERMS", "JACOBIAN_MODES", "BlockLayout", "Blocks", "ForceTerm", "ForceDrag",
+__all__ = ["FORCE_TERMS", "JACOBIAN_MODES", "PROJECTED_MODES", "BlockLayout", "Blocks", "ForceTerm", "ForceDrag",
            "ForceGravitational", "ForceGravity", "ForceSpring", "make_force_terms", "eval_forces",
            "eval_forces_discrete", "dense_jacobians"]
 

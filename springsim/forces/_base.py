@@ -17,13 +17,18 @@ from typing import ClassVar
 
 import numpy as np
 
-__all__ = ["BlockLayout", "Blocks", "ForceTerm", "JACOBIAN_MODES", "PairIncidence"]
+__all__ = ["BlockLayout", "Blocks", "ForceTerm", "JACOBIAN_MODES", "PROJECTED_MODES", "PairIncidence"]
 
 #: Jacobian variants (see README, "Jacobian modes").
 #: ``exact``: the true derivative; ``symmetric``: drops the non-symmetric position
 #: derivative of spring damping; ``spd``: symmetric, with each local block projected so
-#: that ``-dF/dq`` is positive semi-definite.
-JACOBIAN_MODES = ("exact", "symmetric", "spd")
+#: that ``-dF/dq`` is positive semi-definite; ``mixed``: ``spd`` with each spring's tension in its
+#: transverse (geometric) stiffness taken from the linearisation of the previous assembly instead of the
+#: current stretch (the primal-dual Newton of the compliant-constraint form with its multiplier eliminated,
+#: :mod:`springsim.forces.spring`); the first assembly of a term is ``spd``.
+JACOBIAN_MODES = ("exact", "symmetric", "spd", "mixed")
+#: The modes whose matrices are positive semi-definite projections (``-dF/dq >= 0``).
+PROJECTED_MODES = ("spd", "mixed")
 
 
 @dataclass(frozen=True, eq=False)
@@ -112,6 +117,14 @@ class ForceTerm(ABC):
     #: (:mod:`springsim.distributed.partition`).
     pairwise: ClassVar[bool] = False
 
+    #: Whether the term's force is ``-grad V`` of its :meth:`potential_energy` (springs' elastic part, gravity,
+    #: gravitational pairs). With :attr:`dissipative` this decides whether an implicit stage is a minimisation
+    #: (:mod:`springsim.integrators._stage`): every term must be one or the other, or both.
+    conservative: ClassVar[bool] = False
+    #: Whether the term has a velocity-dependent part ``-D(q) qd``, linear in ``qd`` with ``D`` symmetric positive
+    #: semi-definite, whose Rayleigh function is :meth:`dissipation` (spring damping, drag).
+    dissipative: ClassVar[bool] = False
+
     #: Layouts of dF/dq and dF/dqd, or None where the term does not depend on q / qd.
     layout_q: BlockLayout | None = None
     layout_qd: BlockLayout | None = None
@@ -128,12 +141,23 @@ class ForceTerm(ABC):
         """
 
     @abstractmethod
-    def eval_force(self, q: np.ndarray, qd: np.ndarray, f_out: np.ndarray) -> None:
-        """Accumulate this term's forces [N] into ``f_out`` (N, 3)."""
+    def eval_force(self, q: np.ndarray, qd: np.ndarray, f_out: np.ndarray, *,
+                   damping_geometry: np.ndarray | None = None) -> None:
+        """Accumulate this term's forces [N] into ``f_out`` (N, 3).
+
+        ``damping_geometry`` (N, 3), optional: positions at which the dissipative part takes its geometry
+        (a spring's direction) instead of ``q``; the implicit stages freeze it so that damping is a dissipation
+        potential (:mod:`springsim.integrators._stage`). Terms whose dissipative part does not depend on the
+        positions ignore it.
+        """
 
     def eval_jacobians(self, q: np.ndarray, qd: np.ndarray, mode: str = "exact", *,
-                       work: dict | None = None) -> tuple[Blocks | None, Blocks | None]:
+                       work: dict | None = None,
+                       damping_geometry: np.ndarray | None = None) -> tuple[Blocks | None, Blocks | None]:
         """``(dF/dq, dF/dqd)`` as :class:`Blocks` (or None where independent).
+
+        With ``damping_geometry`` (see :meth:`eval_force`) the dissipative part is evaluated with that
+        geometry: it then has no position derivative, and ``dF/dqd = -D(damping_geometry)``.
 
         ``mode`` is one of :data:`JACOBIAN_MODES`. ``work``: a dict owned by the caller in
         which the term may keep its large temporaries between calls (:func:`scratch`); the
@@ -168,9 +192,9 @@ class ForceTerm(ABC):
         """:meth:`jacobian_symmetric` for :meth:`eval_jacobians_discrete`."""
         return self.jacobian_symmetric(mode)
 
-    def jacobian_symmetric(self, mode: str) -> bool:
+    def jacobian_symmetric(self, mode: str, *, frozen_damping: bool = False) -> bool:
         """Whether this term's contribution ``-a dF/dq - b dF/dqd`` to the system matrix is symmetric
-        in Jacobian ``mode`` (every ``a``, ``b``). Terms with a non-symmetric derivative override it;
+        in Jacobian ``mode`` (every ``a``, ``b``; ``frozen_damping``: with a ``damping_geometry``). Terms with a non-symmetric derivative override it;
         the assembler declares its matrix symmetric only when every term is."""
         return True
 
@@ -183,6 +207,13 @@ class ForceTerm(ABC):
 
     def potential_energy(self, q: np.ndarray) -> float:
         """Potential energy [J] at ``q`` (0 for dissipative terms)."""
+        return 0.0
+
+    def dissipation(self, geometry: np.ndarray, qd: np.ndarray) -> float:
+        """Rayleigh dissipation function ``1/2 qd^T D(geometry) qd`` [W] of the dissipative part (0 if none).
+
+        The dissipative force is ``-D qd = -d/dqd`` of it; it is half the power the term dissipates.
+        """
         return 0.0
 
     def potential_floor(self) -> float:

@@ -13,6 +13,7 @@ class ForceDrag(ForceTerm):
     """Drag on the particles ``index`` (k,) with coefficients ``beta`` (k,) [N s/m]."""
 
     name = "drag"
+    dissipative = True
 
     def __init__(self, index, beta):
         self.index = np.asarray(index, dtype=np.int64)
@@ -30,8 +31,12 @@ class ForceDrag(ForceTerm):
             return None
         return cls(index, model.particle_drag[index])
 
-    def eval_force(self, q, qd, f_out):
+    def eval_force(self, q, qd, f_out, *, damping_geometry=None):
         f_out[self.index] -= self.beta[:, None] * qd[self.index]
 
-    def eval_jacobians(self, q, qd, mode="exact", *, work=None):
+    def eval_jacobians(self, q, qd, mode="exact", *, work=None, damping_geometry=None):
         return None, Blocks(self.layout_qd, self._blocks)
+
+    def dissipation(self, geometry, qd):
+        v = qd[self.index]
+        return 0.5 * float(np.dot(self.beta, np.einsum("ij,ij->i", v, v)))

@@ -34,8 +34,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._base import (BlockLayout, Blocks, ForceTerm, PairIncidence, active_pairs, outer, pair_geometry, scratch,
-                    step_pairs)
+from ._base import (PROJECTED_MODES, BlockLayout, Blocks, ForceTerm, PairIncidence, active_pairs, outer,
+                    pair_geometry, scratch, step_pairs)
 
 __all__ = ["ForceGravitational"]
 
@@ -56,6 +56,7 @@ class ForceGravitational(ForceTerm):
 
     name = "gravitational"
     pairwise = True
+    conservative = True
 
     def __init__(self, pairs, c, eps):
         self.pairs = np.asarray(pairs, dtype=np.int64)
@@ -75,7 +76,7 @@ class ForceGravitational(ForceTerm):
         return cls(pairs, model.gravitational_G[keep] * m[pairs[:, 0]] * m[pairs[:, 1]],
                    model.gravitational_softening[keep])
 
-    def eval_force(self, q, qd, f_out):
+    def eval_force(self, q, qd, f_out, *, damping_geometry=None):
         d = self.incidence.diff(q)
         ls = np.maximum(np.sqrt(np.einsum("ij,ij->i", d, d)), self.eps)
         d *= (-self.c / ls**3)[:, None]
@@ -126,7 +127,7 @@ class ForceGravitational(ForceTerm):
             lm = np.sqrt(np.einsum("ij,ij->i", dm, dm))
             nm = np.divide(dm, lm[:, None], out=np.zeros_like(dm), where=(lm > 0)[:, None])
             w = 2.0 * s1 * lm
-            if mode == "spd":
+            if mode in PROJECTED_MODES:
                 w = np.maximum(w, -s)
             outer(nm, nm, out=K)
             K *= -w[:, None, None]
@@ -136,13 +137,13 @@ class ForceGravitational(ForceTerm):
     def jacobian_symmetric_discrete(self, mode: str) -> bool:
         return mode != "exact"
 
-    def eval_jacobians(self, q, qd, mode="exact", *, work=None):
+    def eval_jacobians(self, q, qd, mode="exact", *, work=None, damping_geometry=None):
         P = self.pairs.shape[0]
         d, l, n, near = pair_geometry(q, self.pairs, self.eps, work)
         s = (self.c / np.maximum(l, self.eps) ** 3)[:, None, None]
         # K = -s (I - w nn^T), w = 1 (spd) or 3 (exact): s w nn^T, then -s on the diagonal
         K = outer(n, n, out=scratch(work, "K", (P, 3, 3)))
-        K *= s * (1.0 if mode == "spd" else 3.0)
+        K *= s * (1.0 if mode in PROJECTED_MODES else 3.0)
         K.reshape(-1, 9)[:, ::4] -= s.reshape(-1, 1)
         return Blocks(self.layout_q, K), None
 

@@ -13,6 +13,7 @@ class ForceGravity(ForceTerm):
     """Uniform gravity ``g`` [m/s^2] (3-vector) acting on masses ``mass`` (N,)."""
 
     name = "gravity"
+    conservative = True
 
     def __init__(self, mass, g):
         self.mass = np.asarray(mass, dtype=np.float64)
@@ -26,7 +27,7 @@ class ForceGravity(ForceTerm):
             return None
         return cls(model.particle_mass, model.gravity_vector)
 
-    def eval_force(self, q, qd, f_out):
+    def eval_force(self, q, qd, f_out, *, damping_geometry=None):
         f_out += self._force
 
     def constant_force(self):

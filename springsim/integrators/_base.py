@@ -13,7 +13,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from ..forces import eval_forces, make_force_terms
+from ..system import SerialSystem
 
 __all__ = ["Integrator", "StepStats", "PRECISION_LOSS_LIMIT"]
 
@@ -119,14 +119,21 @@ class StepStats:
 class Integrator(ABC):
     """Base class. Subclasses set :attr:`name` and implement :meth:`step`.
 
+    Every integrator is written once against a :class:`~springsim.system.System`: the serial one by default,
+    or the PETSc one (:class:`springsim.distributed.DistributedSystem`) for distributed runs. Its states are
+    then the system's state arrays (every particle serially, the owned particles of a rank otherwise).
+
     Parameters
     ----------
     model : Model
+    system : System, optional
+        The backend (default: a :class:`~springsim.system.SerialSystem` of ``model`` with ``terms`` and
+        ``force_kernels``).
     terms : list of ForceTerm, optional
-        Force terms (default: those the model uses).
+        Force terms (default: those the model uses); only without ``system``.
     force_kernels : {"auto", "numba", "numpy"}
         Compiled force passes where numba is installed (``"auto"``; see :func:`springsim.forces.make_force_terms`)
-        or the pure numpy path; used only when ``terms`` is not given.
+        or the pure numpy path; used only when neither ``system`` nor ``terms`` is given.
     """
 
     name: ClassVar[str]
@@ -145,17 +152,24 @@ class Integrator(ABC):
     unused_options: ClassVar[frozenset] = frozenset({
         "solver", "jacobian", "newton_tol", "newton_maxiter", "residual_rtol", "on_nonconvergence", "solver_options",
         "line_search", "min_step", "escalate_jacobian", "escalate_after", "forcing", "forcing_max",
-        "filter_estimates"})
+        "filter_estimates", "stage_solver", "force_rtol", "force_atol", "retake_halvings"})
 
-    def __init__(self, model, *, terms=None, force_kernels: str = "auto"):
+    def __init__(self, model, *, system=None, terms=None, force_kernels: str = "auto", **system_options):
         self.model = model
-        self.terms = make_force_terms(model, kernels=force_kernels) if terms is None else list(terms)
-        self.free = model.free_particles
-        self.fixed = model.particle_fixed
-        self._fixed_index = np.flatnonzero(self.fixed)  # an index array: several times faster than the mask
-        self._inv_mass = np.where(self.fixed, 0.0, 1.0 / model.particle_mass)[:, None]
-        self._f = np.zeros((model.particle_count, 3))
-        self._a = np.zeros((model.particle_count, 3))
+        if system is None:
+            system = SerialSystem(model, terms=terms, force_kernels=force_kernels, **system_options)
+        elif terms is not None or system_options:
+            raise TypeError("terms and solver options belong to the system when a system is given")
+        self.system = system
+        self.terms = system.terms
+        #: Indices of the fixed particles in the state arrays (held by every step).
+        self.fixed = system.fixed
+        n = system.particle_mass.shape[0]
+        inv = 1.0 / system.particle_mass
+        inv[self.fixed] = 0.0
+        self._inv_mass = inv[:, None]
+        self._f = np.zeros((n, 3))
+        self._a = np.zeros((n, 3))
         #: ``(err_q [m], err_v [m/s])``, arrays (N, 3): local error estimate of the last step
         #: (integrators with :attr:`has_error_estimate`), else None.
         self.error_estimate: tuple[np.ndarray, np.ndarray] | None = None
@@ -167,9 +181,9 @@ class Integrator(ABC):
 
         The result lives in a buffer of the integrator's, overwritten by the next call.
         """
-        eval_forces(self.terms, q, qd, out=self._f)
+        self.system.forces(q, qd, self._f)
         a = np.multiply(self._f, self._inv_mass, out=self._a)
-        a[self._fixed_index] = 0.0  # not inf * 0 = NaN when a force overflows on a fixed particle
+        a[self.fixed] = 0.0  # not inf * 0 = NaN when a force overflows on a fixed particle
         return a
 
     def blowup_hint(self) -> str:

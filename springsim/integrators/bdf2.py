@@ -47,7 +47,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._base import StepStats
 from ._implicit import ImplicitIntegrator
 
 __all__ = ["IntegratorBDF2", "StepHistory"]
@@ -56,12 +55,15 @@ __all__ = ["IntegratorBDF2", "StepHistory"]
 class StepHistory:
     """Remembers a one-step method's last input/output so multistep methods can continue or retry.
 
+    States are compared on every process of the system (:meth:`~springsim.system.System.all_equal`).
+
     Attributes hold copies: ``q_in, v_in`` (N, 3) the last step's input, ``q_out, v_out`` its
     output, ``h`` its size [s], ``a_out`` the acceleration at the output [m/s^2], ``used``
     whatever history record that step used.
     """
 
-    def __init__(self):
+    def __init__(self, system):
+        self.system = system
         self.last = None
 
     def record(self, q_in, v_in, q_out, v_out, h, a_out, used):
@@ -74,9 +76,10 @@ class StepHistory:
         L = self.last
         if L is None:
             return None
-        if np.array_equal(q, L["q_out"]) and np.array_equal(v, L["v_out"]):
+        eq = self.system.all_equal
+        if eq(q, L["q_out"]) and eq(v, L["v_out"]):
             return (L["q_in"], L["v_in"], L["h"], L["a_out"])
-        if np.array_equal(q, L["q_in"]) and np.array_equal(v, L["v_in"]):
+        if eq(q, L["q_in"]) and eq(v, L["v_in"]):
             return L["used"]
         return None
 
@@ -108,16 +111,16 @@ class IntegratorBDF2(ImplicitIntegrator):
 
     def __init__(self, model, **options):
         super().__init__(model, **options)
-        self.history = StepHistory()
+        self.history = StepHistory(self.system)
 
     def reset(self):
         super().reset()
         self.history.clear()
 
-    def step(self, state_in, state_out, dt):
-        stats = StepStats(dt)
-        h = float(dt)
-        q, v = state_in.particle_q, state_in.particle_qd
+    def after_retake(self):
+        self.history.clear()
+
+    def advance(self, q, v, h, stats):
         hist = self.history.lookup(q, v)
         if hist is not None:
             q_prev, v_prev, h_prev, a_n = hist
@@ -128,19 +131,12 @@ class IntegratorBDF2(ImplicitIntegrator):
             q_hat = ca * q - cb * q_prev
             v_hat = ca * v - cb * v_prev
             q1, v1, ok = self.solve_stage(q_hat, v_hat, c, v, stats)
-            if ok:
-                c_est = c
-                q1[self.fixed] = q[self.fixed]  # a1 q - a2 q_prev rounds: keep fixed particles bit-exact
-                a1 = (v1 - v_hat) / c
-                k = c / (c + h)
-                self.error_estimate = (k * (q1 - _hermite_predict(q, v, q_prev, h_prev, h)),
-                                       k * (v1 - _hermite_predict(v, a_n, v_prev, h_prev, h)))
-            else:  # the two-step recurrence would amplify the unconverged stage; restart the history
-                hist = None
-                a_n = self.acceleration(q, v).copy()
-                q1, v1, _, self.error_estimate = self.retake_implicit_euler(q, v, h, a_n, stats, "bdf2 stage")
-                a1 = (v1 - v) / h
-                c_est = h
+            c_est = c
+            q1[self.fixed] = q[self.fixed]  # a1 q - a2 q_prev rounds: keep fixed particles bit-exact
+            a1 = (v1 - v_hat) / c
+            k = c / (c + h)
+            self.error_estimate = (k * (q1 - _hermite_predict(q, v, q_prev, h_prev, h)),
+                                   k * (v1 - _hermite_predict(v, a_n, v_prev, h_prev, h)))
         else:
             a_n = self.acceleration(q, v).copy()
             q1, v1, _, self.error_estimate = self.implicit_euler_stage(q, v, h, a_n, stats)
@@ -149,10 +145,11 @@ class IntegratorBDF2(ImplicitIntegrator):
             stats.extra["bdf2_start"] = True
         self.error_estimate = self.finish_estimate(q1, v1, c_est, self.error_estimate, stats)
         a1[self.fixed] = 0.0
-        self.history.record(q, v, q1, v1, h, a1, hist)
-        state_out.particle_q[...] = q1
-        state_out.particle_qd[...] = v1
-        return self.check_step(stats)
+        if stats.ok:
+            self.history.record(q, v, q1, v1, h, a1, hist)
+        else:  # the two-step recurrence would amplify an unconverged stage: the retake restarts the history
+            self.history.clear()
+        return q1, v1
 
 
 def _hermite_predict(y, dy, y_prev, h_prev, h):

@@ -66,9 +66,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import SolverError
-from ..forces import eval_forces_discrete
-from ._base import StepStats
 from ._implicit import ImplicitIntegrator
 
 __all__ = ["IntegratorEnergyMomentum"]
@@ -92,25 +89,27 @@ class IntegratorEnergyMomentum(ImplicitIntegrator):
     order = 2
     has_error_estimate = True
     error_estimate_costs = True
-    unused_options = frozenset({"filter_estimates"})  # the step-doubling estimate needs no filter
+    unused_options = frozenset({"filter_estimates", "force_rtol", "force_atol"})  # no filter, no minimisation
     default_filter_estimates = False
-    #: A step whose stage does not converge is retaken in 2, 4, ... 2**max_halvings equal substeps
-    max_halvings = 3
+    #: The discrete gradient is not the gradient of a potential: Newton on the residual (or the seed's rule)
+    stage_solvers = ("residual", "pa2")
 
     def __init__(self, model, **options):
         super().__init__(model, **options)
         self._q_start: np.ndarray | None = None  # q_0 while the discrete-gradient stage is solved
 
-    def stage_forces(self, q, v, f):
+    def stage_overrides(self):
         if self._q_start is None:  # a stage other than the discrete-gradient one
-            return super().stage_forces(q, v, f)
-        # the stage position is the midpoint: q_1 = 2 q - q_0
-        eval_forces_discrete(self.terms, self._q_start, 2.0 * q - self._q_start, v, f)
+            return {}
+        q0, sysm = self._q_start, self.system
 
-    def stage_matrix(self, q, v, c, mode):
-        if self._q_start is None:
-            return super().stage_matrix(q, v, c, mode)
-        return self.assembler.assemble(q, v, c * c, c, mode, q_start=self._q_start)
+        def forces(q, v, f):  # the stage position is the midpoint: q_1 = 2 q - q_0
+            return sysm.forces_discrete(q0, 2.0 * q - q0, v, f)
+
+        def matrix(q, v, c, mode):
+            return sysm.assemble(q, v, c * c, c, mode, q_start=q0)
+
+        return dict(forces=forces, matrix=matrix)
 
     def _substep(self, q, v, h, stats, w0=None):
         """One energy-momentum step of size ``h`` from ``(q, v)``, Newton from ``w0`` (default ``v``):
@@ -146,37 +145,8 @@ class IntegratorEnergyMomentum(ImplicitIntegrator):
             stats.fail("energy_momentum: a stage of the step-doubling estimate did not converge")
         return q2, v2
 
-    def _retaken(self, q, v, h, stats):
-        """One step of ``h``, retaken in 2, 4 and 8 substeps while it fails (module docstring, "Retake"):
-        ``(q1, v1)``."""
-        for level in range(self.max_halvings + 1):
-            n = 2 ** level
-            last = level == self.max_halvings
-            q1, v1, ok = q, v, True
-            try:
-                for _ in range(n):
-                    q1, v1, ok_k = self._substep(q1, v1, h / n, stats)
-                    ok = ok and ok_k and stats.ok  # stats.ok: also a well-conditioned matrix
-                    if not ok and not last:
-                        break
-            except SolverError as e:  # a non-finite linear solution: smaller substeps, or the error
-                if last:
-                    raise
-                stats.fail(str(e))
-                ok = False
-            if ok or last:
-                break
-            stats.retake(f"energy_momentum in {n} substep(s): {'; '.join(stats.failures) or 'failed'}; "
-                         f"retaken in {2 * n}")
-        if n > 1:
-            stats.extra["substeps"] = n
+    def advance(self, q, v, h, stats):
+        if self.estimating:
+            return self._doubled(q, v, h, stats)
+        q1, v1, _ = self._substep(q, v, h, stats)
         return q1, v1
-
-    def step(self, state_in, state_out, dt):
-        stats = StepStats(dt)
-        h = float(dt)
-        q, v = state_in.particle_q, state_in.particle_qd
-        q1, v1 = (self._doubled if self.estimating else self._retaken)(q, v, h, stats)
-        state_out.particle_q[...] = q1
-        state_out.particle_qd[...] = v1
-        return self.check_step(stats)

@@ -3,9 +3,8 @@
 ``[M - h^2 dF/dq - h dF/dqd] dqd = h F(q^n + h qd^n, qd^n)`` with the Jacobians at
 ``(q^n + h qd^n, qd^n)``; then ``qd^{n+1} = qd^n + dqd``, ``q^{n+1} = q^n + h qd^{n+1}``.
 
-The Jacobian mode defaults as for every implicit integrator: ``exact`` (PA2 eq. 3 with the
-true Jacobian) with solvers that take any matrix (``dense``, ``direct``, ``amg-gmres``, and
-``auto`` up to its direct-solver size), ``spd`` with CG-type solvers, which need it.
+The Jacobian mode defaults to ``spd`` (the projected Jacobian of the ``minimize`` stage rule, on every
+backend); ``stage_solver="pa2"`` gives PA2 eq. 3 with the exact Jacobian, as the course code.
 
 Energy caveat of the exact Jacobian (docs/robustness.md): for a compressed spring
 (``l < l0``) the exact ``-dF/dq`` has the negative transverse stiffness ``-k (l0 - l)/l``.
@@ -22,7 +21,6 @@ radial kick; for close encounters use ``implicit_euler``.
 
 from __future__ import annotations
 
-from ._base import StepStats
 from ._implicit import ImplicitIntegrator
 
 __all__ = ["IntegratorLinearizedImplicit"]
@@ -36,7 +34,8 @@ class IntegratorLinearizedImplicit(ImplicitIntegrator):
     name = "linearized_implicit"
     # one plain Newton iteration: no stopping rule, line search or escalation
     unused_options = frozenset({"newton_tol", "newton_maxiter", "residual_rtol", "line_search", "min_step",
-                                "escalate_jacobian", "escalate_after", "forcing", "forcing_max", "filter_estimates"})
+                                "escalate_jacobian", "escalate_after", "forcing", "forcing_max", "filter_estimates",
+                                "force_rtol", "force_atol"})
 
     def blowup_hint(self) -> str:
         if self.jacobian != "spd":
@@ -44,10 +43,6 @@ class IntegratorLinearizedImplicit(ImplicitIntegrator):
                     f"compressed springs: try jacobian spd (--jacobian spd), a smaller time step or implicit_euler")
         return "try a smaller time step or implicit_euler"
 
-    def step(self, state_in, state_out, dt):
-        stats = StepStats(dt)
-        q, qd = state_in.particle_q, state_in.particle_qd
-        q1, v1, _ = self.solve_stage(q, qd, dt, qd, stats, maxiter=1, converge=False, final_residual=False)
-        state_out.particle_q[...] = q1
-        state_out.particle_qd[...] = v1
-        return self.check_step(stats)
+    def advance(self, q, v, h, stats):
+        q1, v1, _ = self.solve_stage(q, v, h, v, stats, maxiter=1, converge=False, final_residual=False)
+        return q1, v1

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..forces import eval_forces
 from ._base import Integrator, StepStats
 
 __all__ = ["IntegratorSymplecticEuler"]
@@ -27,12 +26,14 @@ class IntegratorSymplecticEuler(Integrator):
 
             self._update = symplectic_euler_update
             self._inv_mass_1d = np.ascontiguousarray(self._inv_mass[:, 0])
+            self._fixed_mask = np.zeros(self._inv_mass.shape[0], dtype=bool)
+            self._fixed_mask[self.fixed] = True
 
     def step(self, state_in, state_out, dt):
         q, qd = state_in.particle_q, state_in.particle_qd
         if self._update is not None:
-            f = eval_forces(self.terms, q, qd, out=self._f)
-            self._update(q, qd, f, self._inv_mass_1d, self.fixed, float(dt), state_out.particle_q,
+            f = self.system.forces(q, qd, self._f)
+            self._update(q, qd, f, self._inv_mass_1d, self._fixed_mask, float(dt), state_out.particle_q,
                          state_out.particle_qd)
             return StepStats(dt)
         a = self.acceleration(q, qd)  # a buffer of the integrator's, reused as scratch below

@@ -40,7 +40,6 @@ from __future__ import annotations
 
 import math
 
-from ._base import StepStats
 from ._implicit import ImplicitIntegrator
 
 __all__ = ["IntegratorTRBDF2", "GAMMA"]
@@ -66,16 +65,16 @@ class IntegratorTRBDF2(ImplicitIntegrator):
     order = 2
     has_error_estimate = True
 
-    def step(self, state_in, state_out, dt):
-        stats = StepStats(dt)
-        h = float(dt)
+    def advance(self, q, v, h, stats):
         g = GAMMA
-        q, v = state_in.particle_q, state_in.particle_qd
+        self.error_estimate = None
         a_n = self.acceleration(q, v).copy()
         # trapezoidal stage to t_n + gamma h
         c1 = 0.5 * g * h
         v_hat1 = v + c1 * a_n
         q_g, v_g, ok1 = self.solve_stage(q + c1 * v, v_hat1, c1, v, stats)
+        if not ok1:  # the second stage would build on an unconverged one: the step is retaken smaller
+            return q_g, v_g
         a_g = (v_g - v_hat1) / c1
         # BDF2 stage over t_n, t_n + gamma h, t_n + h
         c2 = h * (1.0 - g) / (2.0 - g)
@@ -83,10 +82,7 @@ class IntegratorTRBDF2(ImplicitIntegrator):
         v_hat2 = s * v_g - r * v
         q1, v1, ok2 = self.solve_stage(s * q_g - r * q, v_hat2, c2, v_g, stats)
         a1 = (v1 - v_hat2) / c2
-        if not (ok1 and ok2):
-            q1, v1, _, self.error_estimate = self.retake_implicit_euler(q, v, h, a_n, stats, "tr_bdf2 stages")
-            c2 = h  # the implicit Euler stage's coefficient, for the filter
-        else:
+        if ok2:
             q1[self.fixed] = q[self.fixed]  # a1 q - a2 q_prev rounds: keep fixed particles bit-exact
             a1[self.fixed] = 0.0
             a_g[self.fixed] = 0.0
@@ -94,7 +90,5 @@ class IntegratorTRBDF2(ImplicitIntegrator):
             w0, wg, w1 = 2.0 * k * h / g, -2.0 * k * h / (g * (1.0 - g)), 2.0 * k * h / (1.0 - g)
             # sign: the estimate approximates (numerical - exact)
             self.error_estimate = (-(w0 * v + wg * v_g + w1 * v1), -(w0 * a_n + wg * a_g + w1 * a1))
-        self.error_estimate = self.finish_estimate(q1, v1, c2, self.error_estimate, stats)
-        state_out.particle_q[...] = q1
-        state_out.particle_qd[...] = v1
-        return self.check_step(stats)
+            self.error_estimate = self.finish_estimate(q1, v1, c2, self.error_estimate, stats)
+        return q1, v1

@@ -1,0 +1,532 @@
+"""The stage solver of every implicit integrator, written once over the system interface.
+
+Every implicit method here reduces each step (or stage) to finding the velocity ``v`` with::
+
+    R(v) = c F(q_hat + c v, v) - M (v - v_hat) = 0          q = q_hat + c v
+
+for known ``q_hat``, ``v_hat`` and coefficient ``c`` (implicit Euler: ``c = h``, ``q_hat = q^n``,
+``v_hat = qd^n``, PA2 eqs. 1-2; BDF2, TR-BDF2 and energy-momentum: their own, see their modules). Newton's
+update ``dv`` solves::
+
+    [M - c^2 dF/dq - c dF/dqd] dv = R(v_i)                  (A dv = R)
+
+over the free DOFs (row and column elimination, :mod:`springsim.assembly.fixed`), through the
+:class:`~springsim.system.System` of the integrator, so the same code runs serially and on PETSc.
+
+Three rules decide how the iteration is globalised and when it stops (``stage_solver``):
+
+``"minimize"`` (the default where every force term is conservative or dissipative)
+    The stage is the minimisation of the incremental potential (Gast, Schroeder, Stomakhin, Jiang and
+    Teran 2015; Li et al. 2020, IPC's projected Newton) in the stage position ``x = q_hat + c v``::
+
+        E(x) = 1/(2 c^2) |x - x_tilde|_M^2 + V(x) + c Psi_g((x - q_hat)/c),   x_tilde = q_hat + c v_hat
+
+    with ``V`` the potential of the conservative terms (springs, gravity, gravitational pairs) and ``Psi_g``
+    the Rayleigh dissipation function of the damping (spring damping, drag) with its geometry frozen at
+    ``g = x_tilde``, the inertial predictor (:meth:`~springsim.forces.ForceTerm.dissipation`). Its gradient
+    is ``grad E = -R / c``, a force [N]: the stage's force imbalance, with the damping force taken along the
+    directions of ``x_tilde``. Freezing the direction changes the damping force by ``O(|x - x_tilde|) =
+    O(c^2)``, so first- and second-order methods keep their order; the dissipation stays a convex potential,
+    so damped scenes keep the guarantee below. Newton's matrix is the projected Hessian ``c^2 H = A`` in
+    the ``mixed`` mode (default; or ``spd``: compressed springs' transverse term clamped at 0, gravitational
+    pairs' negative eigenvalue clamped, damping ``D >= 0``; ``mixed`` also takes each spring's tension in
+    that term from the previous iterate's linearisation, :mod:`springsim.forces.spring`), so ``A >= M`` is
+    positive definite by construction, ``dv`` is a descent direction and a backtracking (Armijo) line search
+    on ``E`` itself always finds a decrease. A
+    stage stops when the gradient is small in newtons::
+
+        |grad E|_2 <= force_atol + force_rtol f_ref,    f_ref = |M (v_0 - v_hat)/c|_2 + |F_0|_2 + |M g|_2
+
+    (2-norms over free DOFs, at the starting iterate ``v_0``; ``|M g|`` the free particles' weight), or, when
+    round-off leaves no decrease to find, when the gradient is within ``1e3`` times that and the line search
+    reports stagnation. Damped or not, ``E`` decreases at every iteration.
+
+``"residual"``
+    Newton on the residual with a backtracking line search on ``|R|`` (Armijo on ``1/2 |R|^2``), stopping
+    when ``|dv|_2 < newton_tol`` and ``|R|_2 / (|c F|_2 + |M (v - v_hat)|_2 + newton_tol |m|_2) <=
+    residual_rtol``, with the escalation from the projected to the exact Jacobian when it stalls. Used by
+    the energy-momentum method, whose discrete gradient is not the gradient of a potential.
+
+``"pa2"``
+    The seed's rule (PA2 section 4): plain Newton from ``v_0``, no line search, stop when
+    ``|dv|_2 < newton_tol`` or after ``newton_maxiter`` (5) iterations, exact Jacobian: the course code,
+    reproduced.
+
+Linearized implicit Euler is one plain iteration of any of them (``converge=False``).
+
+Forcing. With ``forcing="eisenstat-walker"`` the linear solves of a stage run to convergence are inexact
+Newton steps (Dembo, Eisenstat and Steihaug 1982): each solve of ``A dv = R`` stops at the relative residual
+``eta_k`` of Eisenstat and Walker (1996, choice 2; :func:`forcing_term`), never below the system's linear
+``rtol``. An update from a loose solve can pass a stopping rule while the iterate is not converged, so it is
+confirmed by one more solve to ``rtol`` (:class:`StageForcing`).
+
+Linear solves. A solve that missed its criterion is still a usable search direction (inexact Newton) in a
+stage whose own stopping rule then certifies the result (counted in
+``StepStats.extra["recovered_linear_failures"]``); in a stage that does not converge, and in linearized
+implicit Euler, it fails the step (``StepStats.linear_failures``). A non-finite solution ends the step with
+:class:`~springsim.errors.SolverError`.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import SceneError, SolverError
+from ..forces import JACOBIAN_MODES, PROJECTED_MODES
+from ._base import PRECISION_LOSS_LIMIT, StepStats
+
+__all__ = ["STAGE_SOLVERS", "FORCING_RULES", "StageOptions", "StageSolver", "StageForcing", "forcing_term",
+           "backtrack", "record_linear_solve", "report_stage", "check_count"]
+
+#: Rules of the stage solver (module docstring).
+STAGE_SOLVERS = ("minimize", "residual", "pa2")
+#: Rules for the relative tolerance of a Newton stage's linear solves (``forcing``; module docstring).
+FORCING_RULES = ("fixed", "eisenstat-walker")
+#: Armijo's sufficient-decrease constant.
+_ARMIJO = 1e-4
+
+
+def forcing_term(k: int, rnorm: float, rnorm_prev: float, eta_prev: float, *, eta_max: float, floor: float) -> float:
+    """Relative tolerance of the ``k``-th linear solve of a Newton stage (Eisenstat and Walker 1996, choice 2).
+
+    ``eta_0 = eta_max``; then ``eta_k = 0.9 (|R_k| / |R_{k-1}|)^2``, safeguarded by ``0.9 eta_{k-1}^2`` when that
+    exceeds 0.1 (a sudden drop of ``|R|`` does not make one solve needlessly tight), capped at ``eta_max`` and
+    never below ``floor`` (the solver's ``rtol``).
+
+    Parameters
+    ----------
+    k : int
+        Index of the solve in the stage (0 first).
+    rnorm, rnorm_prev : float
+        Residual norms before this solve and before the previous one.
+    eta_prev : float
+        The previous solve's forcing term.
+    eta_max, floor : float
+        Upper and lower bounds.
+
+    Returns
+    -------
+    float
+        The relative tolerance of this solve.
+    """
+    if k == 0 or not (rnorm_prev > 0.0 and np.isfinite(rnorm)):
+        eta = eta_max
+    else:
+        eta = 0.9 * (rnorm / rnorm_prev) ** 2
+        safeguard = 0.9 * eta_prev ** 2
+        if safeguard > 0.1:
+            eta = max(eta, safeguard)
+    return max(min(eta, eta_max), floor)
+
+
+class StageForcing:
+    """The linear tolerances of one Newton stage (module docstring, "Forcing").
+
+    :meth:`rtol` before each solve gives its relative tolerance (None: the solver's own, the ``"fixed"``
+    rule); :meth:`certified` tells whether an update that passed the stopping rule may end the stage (it came
+    from a solve to ``floor``), and otherwise makes the next solve one to ``floor``.
+
+    Parameters
+    ----------
+    rule : {"fixed", "eisenstat-walker"}
+    eta_max : float
+        First and largest forcing term.
+    floor : float
+        Smallest forcing term (the linear solver's ``rtol``).
+    """
+
+    def __init__(self, rule: str, *, eta_max: float, floor: float):
+        self.on = rule == "eisenstat-walker"
+        self.eta_max, self.floor = eta_max, floor
+        self.k, self.eta, self.rnorm_prev, self.confirm = 0, 0.0, 0.0, False
+
+    def rtol(self, rnorm: float) -> float | None:
+        """The next solve's relative tolerance, given the residual norm ``|R|`` it solves for."""
+        if not self.on:
+            return None
+        self.eta = self.floor if self.confirm else forcing_term(self.k, rnorm, self.rnorm_prev, self.eta,
+                                                                eta_max=self.eta_max, floor=self.floor)
+        self.k, self.rnorm_prev = self.k + 1, rnorm
+        return self.eta
+
+    def certified(self, residual: float) -> bool:
+        """Whether the update of a solve that reached the relative residual ``residual`` may end the stage."""
+        if not self.on or residual <= self.floor:
+            return True
+        self.confirm = True  # a loose update passed: the next one is solved to the floor and decides
+        return False
+
+
+def backtrack(trial, rnorm: float, *, enabled: bool, min_step: float):
+    """Backtracking line search on ``|R|`` (Armijo on the merit ``1/2 |R|^2``): ``(alpha, trial(alpha))``.
+
+    ``trial(alpha)`` evaluates the iterate at step ``alpha`` and returns a tuple whose fourth entry is its
+    residual norm. ``alpha`` halves from 1 until ``|R|`` decreases by ``1e-4 alpha`` relatively, ``alpha``
+    reaches ``min_step``, or (``enabled`` False) at once. The trial's residual is the next iteration's, so
+    a full step costs nothing extra; near the solution full steps are taken and quadratic convergence kept.
+    """
+    alpha = 1.0
+    while True:
+        result = trial(alpha)
+        rn = result[3]
+        if not enabled or rn <= (1.0 - _ARMIJO * alpha) * rnorm or alpha <= min_step or not np.isfinite(rnorm):
+            return alpha, result
+        alpha *= 0.5
+
+
+def record_linear_solve(stats: StepStats, res, finite: bool) -> str | None:
+    """Add a linear solve's cost and outcome to ``stats``; the failure to judge at the stage's end, or None.
+
+    ``finite``: whether the solution is finite everywhere (on every rank, for a distributed solve).
+
+    Raises
+    ------
+    SolverError
+        For a non-finite solution: there is no direction to continue from.
+    """
+    stats.solve_s += res.time_s
+    stats.linear_iterations += res.iterations
+    stats.linear_solves += 1
+    stats.linear_residual = max(stats.linear_residual, res.residual)
+    if res.fallback:
+        stats.fallbacks.append(f"{res.method}: {res.fallback}")
+    if not finite:
+        raise SolverError(f"linear solver {res.method!r} failed: {res.failure or 'non-finite solution'}")
+    return None if res.converged else f"linear solve ({res.method}) failed: {res.failure}"
+
+
+def report_stage(stats: StepStats, *, converge: bool, converged: bool, failed: list, why: str) -> bool:
+    """Record the outcome of a stage in ``stats`` (module docstring); whether the stage is ok.
+
+    ``failed``: its failed linear solves. In a stage run to convergence (``converge``) that converged they were
+    inexact Newton directions certified by the stopping rule (counted as recovered); otherwise they fail the step.
+    ``why``: the reason of a non-converged stage. Ill-conditioning is reported for the step but does not fail the
+    stage: retaking it another way would not make the conditioning better.
+    """
+    if converge:
+        if converged and failed:
+            stats.extra["recovered_linear_failures"] = stats.extra.get("recovered_linear_failures", 0) + len(failed)
+            failed = []
+        if not converged:
+            stats.newton_converged = False
+            stats.fail(why)
+    stats.linear_failures += len(failed)
+    for reason in failed:
+        stats.fail(reason)
+    if stats.ill_conditioned:
+        stats.fail(f"ill-conditioned matrix: it holds the masses only to {stats.precision_loss:.1e} "
+                   f"(limit {PRECISION_LOSS_LIMIT:g}); reduce the step or soften the stiffest pairs")
+    return not failed and (converged or not converge)
+
+
+def check_count(name: str, value) -> None:
+    """A SceneError naming the parameter ``name`` unless ``value`` is an integer >= 1."""
+    if isinstance(value, bool) or int(value) != value or value < 1:
+        raise SceneError(name, f"must be an integer >= 1, got {value!r:.60}")
+
+
+@dataclass(frozen=True)
+class StageOptions:
+    """The options of a stage solver, validated (:class:`~springsim.integrators.ImplicitIntegrator` documents
+    each)."""
+
+    stage_solver: str
+    jacobian: str
+    newton_maxiter: int
+    newton_tol: float
+    residual_rtol: float
+    force_rtol: float
+    force_atol: float
+    line_search: bool
+    min_step: float
+    escalate_jacobian: bool
+    escalate_after: int | None
+    forcing: str
+    forcing_max: float
+
+    def __post_init__(self):
+        if self.stage_solver not in STAGE_SOLVERS:
+            raise SceneError("stage_solver", f"must be one of {', '.join(STAGE_SOLVERS)}, got "
+                                             f"{self.stage_solver!r:.60}")
+        if self.forcing not in FORCING_RULES:
+            raise SceneError("forcing", f"must be one of {', '.join(FORCING_RULES)}, got {self.forcing!r:.60}")
+        if not 0.0 < self.forcing_max < 1.0:
+            raise SceneError("forcing_max", f"must be in (0, 1), got {self.forcing_max!r:.60}")
+        if self.jacobian not in JACOBIAN_MODES:
+            raise SceneError("jacobian", f"must be one of {', '.join(JACOBIAN_MODES)}, got {self.jacobian!r}")
+        if self.stage_solver == "minimize" and self.jacobian not in PROJECTED_MODES:
+            raise SceneError("jacobian", f"the minimize stage solver needs a projected Hessian "
+                                         f"({' or '.join(PROJECTED_MODES)}), got {self.jacobian!r}; choose "
+                                         f"stage_solver residual or pa2 for another mode")
+        for name in ("newton_tol", "residual_rtol", "force_rtol"):
+            if not getattr(self, name) > 0:
+                raise SceneError(name, f"must be > 0, got {getattr(self, name)}")
+        if not self.force_atol >= 0:
+            raise SceneError("force_atol", f"must be >= 0, got {self.force_atol}")
+        if not 0.0 < self.min_step <= 1.0:
+            raise SceneError("min_step", f"must be in (0, 1], got {self.min_step}")
+        check_count("newton_maxiter", self.newton_maxiter)
+        if self.escalate_after is not None:
+            check_count("escalate_after", self.escalate_after)
+
+
+class StageSolver:
+    """Solves ``c F(q_hat + c v, v) = M (v - v_hat)`` for ``v`` on a :class:`~springsim.system.System`.
+
+    Parameters
+    ----------
+    system : System
+    options : StageOptions
+    stage_forces, stage_matrix : callable, optional
+        Replace the system's forces ``F(q, v)`` and stage matrix (the energy-momentum method's discrete
+        gradient); only the ``residual`` and ``pa2`` rules take them.
+    """
+
+    def __init__(self, system, options: StageOptions):
+        self.system = system
+        self.options = options
+        mass = system.particle_mass
+        self._mass = mass[:, None]
+        m_free = system.free_rows(mass)
+        # floor of the residual scale: the residual of a velocity error of newton_tol in every DOF
+        self._mass_norm = float(np.sqrt(3.0 * system.sum(float(np.dot(m_free, m_free)))))
+        self._mass_dofs = system.gather(np.repeat(self._mass, 3, axis=1))
+        self._weight = None  # |M g| over free DOFs, on first use
+        self._warm: np.ndarray | None = None
+        self._failed: list[str] = []
+        self.trace = None
+
+    def reset(self) -> None:
+        """Forget the warm start of the first linear solve."""
+        self._warm = None
+
+    # -- the public entry point ---------------------------------------------------------------------------------
+    def solve(self, q_hat, v_hat, c: float, v0, stats: StepStats, *, maxiter: int | None = None,
+              converge: bool = True, final_residual: bool = True, forces=None, matrix=None):
+        """Solve the stage from ``v0``: ``(q, v, ok)``.
+
+        Parameters
+        ----------
+        q_hat, v_hat, v0 : ndarray (n, 3)
+            State arrays of the stage (module docstring).
+        c : float
+            Stage coefficient [s].
+        stats : StepStats
+            Accumulates iterations, times, norms and failures.
+        maxiter : int, optional
+            Iteration limit (default the options' ``newton_maxiter``); 1 with ``converge=False`` is the
+            linearized method.
+        converge : bool
+            Apply the stopping rule, line search and non-convergence report (False: exactly ``maxiter`` plain
+            Newton iterations, no line search).
+        final_residual : bool
+            With ``converge=False``: evaluate the residual at the returned iterate for ``stats`` (False: NaN,
+            one force evaluation saved).
+        forces, matrix : callable, optional
+            ``forces(q, v, out)`` and ``matrix(q, v, c, mode)`` replacing the system's (residual and pa2 rules).
+
+        Returns
+        -------
+        q, v : ndarray (n, 3)
+        ok : bool
+            Whether the stage converged (when ``converge``; else whether its linear solves met their criterion).
+        """
+        o = self.options
+        maxiter = o.newton_maxiter if maxiter is None else maxiter
+        self._failed = []
+        v = np.array(v0, dtype=np.float64)
+        v[self.system.fixed] = 0.0
+        if converge and o.stage_solver == "minimize" and forces is None:
+            q, v, converged, why = self._minimize(q_hat, v_hat, c, v, stats, maxiter)
+        else:
+            q, v, converged, why = self._newton_escalating(q_hat, v_hat, c, v, stats, maxiter, converge,
+                                                           final_residual or converge, forces, matrix)
+        ok = report_stage(stats, converge=converge, converged=converged, failed=self._failed, why=why)
+        return q, v, ok
+
+    # -- shared pieces ------------------------------------------------------------------------------------------
+    def _assemble(self, q, v, c, mode, stats, *, matrix=None, geometry=None):
+        sysm = self.system
+        if matrix is not None:
+            A = matrix(q, v, c, mode)
+        else:
+            A = sysm.assemble(q, v, c * c, c, mode, damping_geometry=geometry)
+        stats.assembly_s += sysm.last_assembly_s
+        stats.precision_loss = max(stats.precision_loss, sysm.precision_loss(A))
+        return A
+
+    def _linear_solve(self, A, b, stats, first: bool, rtol: float | None = None):
+        sysm = self.system
+        x0 = self._warm if (first and self._warm is not None and self._warm.shape == b.shape) else None
+        res = sysm.solve(A, b, x0=x0, rtol=rtol)
+        failure = record_linear_solve(stats, res, sysm.all_finite(res.x))
+        if failure:
+            self._failed.append(failure)
+        if first:
+            self._warm = res.x
+        return res
+
+    def _step_to(self, v, dv, alpha, q_hat, c):
+        v_try = v.copy()
+        self.system.scatter_add(v_try, dv, alpha)
+        return v_try, q_hat + c * v_try
+
+    # -- the minimisation -----------------------------------------------------------------------------------------
+    def _weight_norm(self) -> float:
+        if self._weight is None:
+            sysm = self.system
+            g = sysm.model.gravity_vector
+            w = sysm.free_rows(self._mass) * g
+            self._weight = float(np.sqrt(sysm.sum(float(np.sum(w * w)))))
+        return self._weight
+
+    def _potential(self, q, v, v_hat, c, geometry, f):
+        """``(E, grad E, |grad E|, f_scale)`` at ``v`` (module docstring); ``f`` receives the stage force."""
+        sysm = self.system
+        t0 = time.perf_counter()
+        sysm.forces(q, v, f, damping_geometry=geometry)
+        dv = v - v_hat
+        inertia = self._mass * dv
+        grad = inertia / c - f  # -R / c, a force [N]
+        grad[sysm.fixed] = 0.0
+        kinetic = 0.5 * sysm.dot(inertia, dv)
+        energy = kinetic + sysm.potential_energy(q) + c * sysm.dissipation(geometry, v)
+        gnorm = sysm.norm(grad)
+        self._force_s += time.perf_counter() - t0
+        return energy, grad, gnorm, kinetic
+
+    def _minimize(self, q_hat, v_hat, c, v, stats, maxiter):
+        """Projected Newton with Armijo backtracking on the incremental potential (module docstring)."""
+        o, sysm = self.options, self.system
+        self._force_s = 0.0
+        geometry = q_hat + c * v_hat  # the inertial predictor: the frozen damping geometry
+        f = np.empty_like(v)
+        q = q_hat + c * v
+        E, grad, gnorm, kinetic = self._potential(q, v, v_hat, c, geometry, f)
+        f_ref = sysm.norm(self._mass * (v - v_hat)) / c + sysm.norm(f) + self._weight_norm()
+        tol = o.force_atol + o.force_rtol * f_ref
+        forcing = StageForcing(o.forcing, eta_max=o.forcing_max, floor=sysm.linear_rtol)
+        converged, stagnated, step, alpha = gnorm <= tol, False, 0.0, 1.0
+        it = 0
+        while not converged and it < maxiter and np.isfinite(gnorm):
+            A = self._assemble(q, v, c, o.jacobian, stats, geometry=geometry)
+            R = sysm.gather(grad) * (-c)
+            res = self._linear_solve(A, R, stats, first=(it == 0), rtol=forcing.rtol(gnorm))
+            dv = res.x
+            stats.newton_iterations += 1
+            it += 1
+            slope = -sysm.dot(R, dv)  # d/dalpha E(v + alpha dv) at 0 = grad_x . (c dv) = -R . dv
+            if not slope < 0.0:  # not a descent direction (an inexact solve): the mass-preconditioned gradient
+                dv = R / self._mass_dofs
+                slope = -sysm.dot(R, dv)
+                stats.extra["gradient_steps"] = stats.extra.get("gradient_steps", 0) + 1
+            step = sysm.norm(dv)
+            # Armijo on E with an allowance for the round-off of its evaluation
+            noise = 64.0 * np.finfo(np.float64).eps * (abs(E) + abs(kinetic))
+            alpha = 1.0
+            while True:
+                v_try, q_try = self._step_to(v, dv, alpha, q_hat, c)
+                E_try, g_try, gn_try, k_try = self._potential(q_try, v_try, v_hat, c, geometry, f)
+                if E_try <= E + _ARMIJO * alpha * slope + noise:
+                    break
+                if alpha <= o.min_step or not np.isfinite(E):
+                    stagnated = True
+                    break
+                alpha *= 0.5
+            stats.extra["min_line_search_step"] = min(alpha, stats.extra.get("min_line_search_step", 1.0))
+            if stagnated and not (E_try <= E + noise):
+                # no decrease to find at the smallest step: round-off (or a wrong direction); keep the iterate
+                break
+            v, q, E, grad, gnorm, kinetic = v_try, q_try, E_try, g_try, gn_try, k_try
+            stagnated = False
+            if self.trace is not None:
+                self.trace.append((it, alpha, gnorm, tol, E))
+            if gnorm <= tol and forcing.certified(res.residual):
+                converged = True
+        if not converged and stagnated and gnorm <= 1e3 * tol:
+            converged = True  # round-off leaves no decrease: the gradient is as small as it can be made
+            stats.extra["roundoff_stops"] = stats.extra.get("roundoff_stops", 0) + 1
+        stats.force_s += self._force_s
+        stats.newton_step_norm = step
+        stats.residual_norm = c * gnorm  # |R| = c |grad E| [N s]
+        stats.residual_ratio = gnorm / f_ref if f_ref > 0 else 0.0
+        stats.extra["gradient_norm"] = gnorm
+        stats.extra["gradient_tol"] = tol
+        why = (f"the stage did not converge in {maxiter} Newton iterations: |grad E| {gnorm:.2e} N, tolerance "
+               f"{tol:.2e} N ({'line search stagnated' if stagnated else 'iteration limit'})")
+        return q, v, converged and bool(np.isfinite(gnorm)), why
+
+    # -- Newton on the residual (residual and pa2 rules, and every plain iteration) ---------------------------------
+    def _newton_escalating(self, q_hat, v_hat, c, v, stats, maxiter, converge, final_residual, forces, matrix):
+        o = self.options
+        escalate = converge and o.stage_solver == "residual" and o.escalate_jacobian and o.jacobian != "exact"
+        first = min(maxiter, o.escalate_after) if escalate and o.escalate_after is not None else maxiter
+        q, v, step, rnorm, ratio, converged = self._newton(q_hat, v_hat, c, v, stats, first, converge, o.jacobian,
+                                                           final_residual, forces, matrix)
+        if escalate and not converged and np.isfinite(rnorm):
+            # the projected Jacobian slows Newton to linear convergence where it differs from the exact one
+            # (compressed springs); finish the stage with the exact Jacobian
+            stats.extra["jacobian_escalations"] = stats.extra.get("jacobian_escalations", 0) + 1
+            q, v, step, rnorm, ratio, converged = self._newton(q_hat, v_hat, c, v, stats, maxiter, converge, "exact",
+                                                               final_residual, forces, matrix)
+        stats.newton_step_norm = step
+        stats.residual_norm = rnorm
+        stats.residual_ratio = ratio
+        rule = "" if o.stage_solver == "pa2" else f"; residual ratio {ratio:.1e}, tol {o.residual_rtol:g}"
+        why = f"Newton did not converge in {maxiter} iterations (|dv| {step:.1e} m/s, tol {o.newton_tol:g}{rule})"
+        return q, v, converged and bool(np.isfinite(rnorm)), why
+
+    def _newton(self, q_hat, v_hat, c, v, stats, maxiter, converge, mode, final_residual, forces, matrix):
+        """Newton iterations from ``v`` with the Jacobian ``mode``: ``(q, v, |dv|, |R|, rho, converged)``."""
+        o, sysm = self.options, self.system
+        f = np.empty_like(v)
+        q = q_hat + c * v
+        R, rnorm, ratio = self._residual(q, v, v_hat, c, f, stats, forces)
+        converged, step = False, 0.0
+        search = converge and o.stage_solver == "residual" and o.line_search
+        judge = converge and o.stage_solver == "residual"
+        forcing = StageForcing(o.forcing if converge else "fixed", eta_max=o.forcing_max, floor=sysm.linear_rtol)
+        for it in range(maxiter):
+            A = self._assemble(q, v, c, mode, stats, matrix=matrix)
+            res = self._linear_solve(A, sysm.gather(R), stats, first=(it == 0), rtol=forcing.rtol(rnorm))
+            dv = res.x
+            step = sysm.norm(dv)
+            stats.newton_iterations += 1
+
+            def trial(alpha, v=v, dv=dv, judged=True):
+                v_try, q_try = self._step_to(v, dv, alpha, q_hat, c)
+                if not judged:
+                    return v_try, q_try, None, float("nan"), float("nan")
+                return (v_try, q_try, *self._residual(q_try, v_try, v_hat, c, f, stats, forces))
+
+            if not final_residual and it == maxiter - 1:  # nothing reads the last residual: not computed
+                alpha, (v, q, R, rnorm, ratio) = 1.0, trial(1.0, judged=False)
+            else:
+                alpha, (v, q, R, rnorm, ratio) = backtrack(trial, rnorm, enabled=search, min_step=o.min_step)
+            stats.extra["min_line_search_step"] = min(alpha, stats.extra.get("min_line_search_step", 1.0))
+            if not np.isfinite(step):
+                break
+            if (converge and step < o.newton_tol and (not judge or ratio <= o.residual_rtol)
+                    and forcing.certified(res.residual)):
+                converged = True
+                break
+        return q, v, step, rnorm, ratio, converged
+
+    def _residual(self, q, v, v_hat, c, f, stats, forces=None):
+        """``R = c F(q, v) - M (v - v_hat)`` (n, 3), ``|R|_2`` and ``rho`` over free DOFs (module docstring)."""
+        sysm = self.system
+        t0 = time.perf_counter()
+        if forces is None:
+            sysm.forces(q, v, f)
+        else:
+            forces(q, v, f)
+        cf = c * f
+        mdv = self._mass * (v - v_hat)
+        R = cf - mdv
+        rnorm = sysm.norm(R)
+        scale = sysm.norm(cf) + sysm.norm(mdv) + self.options.newton_tol * self._mass_norm
+        stats.force_s += time.perf_counter() - t0
+        return R, rnorm, (rnorm / scale if scale > 0 else 0.0)

@@ -1,0 +1,181 @@
+"""The system interface: everything an integrator needs from a backend, and nothing else.
+
+An integrator (:mod:`springsim.integrators`) is written once against :class:`System`, as scipy's
+``OdeSolver`` sees only ``fun`` and ``jac`` and PETSc's ``TS`` only ``Vec`` and ``Mat``. A system owns the
+force terms, the assembly of the stage matrix ``A = M - a dF/dq - b dF/dqd``, the linear solver, and every
+reduction (norms, sums, finiteness, equality), so that the same integrator code runs serially
+(:class:`~springsim.system.SerialSystem`: the assembler and a linear solver on one process) and distributed
+(:class:`springsim.distributed.DistributedSystem`: PETSc matrices and KSP over MPI ranks).
+
+Layouts
+-------
+* **State arrays** ``(n, 3)``: positions, velocities, forces of the particles this process holds. Serially
+  ``n`` is every particle and :attr:`System.fixed` indexes the fixed ones (the integrators hold them); in a
+  distributed system ``n`` is the particles this rank owns, all free (fixed particles never move, so no rank
+  owns them). Elementwise numpy operations on state arrays are the same on every backend; anything that
+  combines values across particles goes through the system (:meth:`System.norm`, :meth:`System.sum`, ...), so
+  that every rank takes the same decision.
+* **DOF vectors** ``(3 F_local,)``: the unknowns of the linear systems, three per free particle held here
+  (:meth:`System.gather`, :meth:`System.scatter_add`).
+
+Every reduction is over free particles only: a fixed particle's residual (the force that holds it) is not an
+unknown.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+
+import numpy as np
+
+__all__ = ["System"]
+
+
+class System(ABC):
+    """A backend for the integrators: forces, stage matrices, solves and reductions over state arrays.
+
+    Attributes
+    ----------
+    model : Model
+        The model being simulated (the same on every rank).
+    terms : list of ForceTerm
+        The force terms this process evaluates (serially every term the model uses).
+    particle_mass : ndarray, shape (n,)
+        Masses [kg] of the particles of the state layout.
+    fixed : ndarray of int, shape (k,)
+        Indices of fixed particles in the state layout (empty in a distributed system).
+    is_root : bool
+        Whether this process gathers frames and reports (always True serially).
+    """
+
+    model = None
+    terms: list = []
+    particle_mass: np.ndarray
+    fixed: np.ndarray
+    is_root: bool = True
+
+    # -- set-up -------------------------------------------------------------------------------------------------
+    @abstractmethod
+    def local_state(self, q: np.ndarray, qd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The state arrays of this process from full (N, 3) positions [m] and velocities [m/s] (copies)."""
+
+    @abstractmethod
+    def gather_state(self, q: np.ndarray, qd: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """Full (N, 3) copies of the state arrays ``(q, qd)`` on the root process, ``(None, None)`` elsewhere.
+
+        Collective: every process calls it. Fixed particles take their positions from the model.
+        """
+
+    # -- linear algebra set-up ----------------------------------------------------------------------------------
+    @property
+    @abstractmethod
+    def linear_rtol(self) -> float:
+        """The relative residual the linear solves reach by default (the floor of inexact Newton's forcing)."""
+
+    @abstractmethod
+    def default_jacobian(self) -> str:
+        """The Jacobian mode integrators use when none is given: ``"spd"`` where the solver needs a symmetric
+        positive definite matrix, else ``"exact"``."""
+
+    # -- forces -------------------------------------------------------------------------------------------------
+    @abstractmethod
+    def forces(self, q: np.ndarray, qd: np.ndarray, out: np.ndarray, *,
+               damping_geometry: np.ndarray | None = None) -> np.ndarray:
+        """Total force [N] on the particles of the state layout at ``(q, qd)``, into ``out``; returns ``out``.
+
+        ``damping_geometry``: positions at which the dissipative terms take their geometry (the spring
+        directions) instead of ``q`` (:meth:`springsim.forces.ForceTerm.eval_force`).
+        """
+
+    @abstractmethod
+    def forces_discrete(self, q0: np.ndarray, q1: np.ndarray, qd: np.ndarray, out: np.ndarray) -> np.ndarray:
+        """The energy-momentum force over the step from ``q0`` to ``q1`` with the velocity ``qd``
+        (:meth:`springsim.forces.ForceTerm.eval_force_discrete`), into ``out``."""
+
+    @abstractmethod
+    def potential_energy(self, q: np.ndarray) -> float:
+        """Potential energy [J] of the conservative terms at ``q``, summed over every process.
+
+        Pairs between fixed particles are left out (a constant), so only differences are meaningful.
+        """
+
+    @abstractmethod
+    def dissipation(self, geometry: np.ndarray, qd: np.ndarray) -> float:
+        """Rayleigh dissipation function ``1/2 qd^T D qd`` [W] of the dissipative terms with their geometry at
+        ``geometry``, summed over every process (:meth:`springsim.forces.ForceTerm.dissipation`)."""
+
+    # -- stage matrices and solves ------------------------------------------------------------------------------
+    @abstractmethod
+    def assemble(self, q: np.ndarray, qd: np.ndarray, a: float, b: float, mode: str, *,
+                 q_start: np.ndarray | None = None, damping_geometry: np.ndarray | None = None):
+        """``A = M - a dF/dq - b dF/dqd`` at ``(q, qd)`` over the free DOFs.
+
+        The returned matrix supports ``A @ x`` on DOF vectors and is valid until the next assembly.
+        ``q_start`` selects the energy-momentum Jacobians (:meth:`springsim.assembly.SystemAssembler.assemble`);
+        ``damping_geometry`` evaluates ``dF/dqd`` with the dissipative terms' geometry there.
+        """
+
+    @property
+    @abstractmethod
+    def last_assembly_s(self) -> float:
+        """Wall time of the last assembly [s]."""
+
+    @abstractmethod
+    def solve(self, A, rhs: np.ndarray, *, x0: np.ndarray | None = None, rtol: float | None = None):
+        """Solve ``A x = rhs`` (DOF vectors): a :class:`~springsim.linsolve.LinearSolveResult` whose ``x`` is a
+        DOF vector. ``rtol`` overrides :attr:`linear_rtol` for this solve."""
+
+    @abstractmethod
+    def precision_loss(self, A) -> float:
+        """Relative precision to which ``A`` holds the particle masses, max over processes
+        (:meth:`springsim.assembly.SystemAssembler.precision_loss`)."""
+
+    # -- layouts ------------------------------------------------------------------------------------------------
+    @abstractmethod
+    def gather(self, x: np.ndarray) -> np.ndarray:
+        """The DOF vector of the free particles of a state array ``x`` (n, 3)."""
+
+    @abstractmethod
+    def scatter_add(self, target: np.ndarray, dx: np.ndarray, scale: float = 1.0) -> None:
+        """``target[free] += scale * dx`` for a state array ``target`` and a DOF vector ``dx``."""
+
+    # -- reductions (collective) --------------------------------------------------------------------------------
+    @abstractmethod
+    def sum(self, value: float) -> float:
+        """``value`` summed over every process."""
+
+    @abstractmethod
+    def max(self, value: float) -> float:
+        """The largest ``value`` over every process."""
+
+    @abstractmethod
+    def all(self, flag: bool) -> bool:
+        """Whether ``flag`` holds on every process."""
+
+    @abstractmethod
+    def free_rows(self, x: np.ndarray) -> np.ndarray:
+        """The rows of the free particles of a state array (``x`` itself where every row is free)."""
+
+    @property
+    @abstractmethod
+    def free_dof_count(self) -> int:
+        """Free DOFs of the whole system (every process)."""
+
+    def norm(self, x: np.ndarray) -> float:
+        """2-norm over the free particles of a state array, or of a DOF vector, over every process."""
+        y = (self.free_rows(x) if x.ndim == 2 else x).reshape(-1)
+        return float(np.sqrt(self.sum(float(np.dot(y, y)))))
+
+    def dot(self, x: np.ndarray, y: np.ndarray) -> float:
+        """Inner product over the free particles of two state arrays (or of two DOF vectors), over every process."""
+        if x.ndim == 2:
+            x, y = self.free_rows(x), self.free_rows(y)
+        return self.sum(float(np.dot(x.reshape(-1), y.reshape(-1))))
+
+    def all_finite(self, *arrays: np.ndarray) -> bool:
+        """Whether every array is finite on every process."""
+        return self.all(all(bool(np.all(np.isfinite(a))) for a in arrays))
+
+    def all_equal(self, x: np.ndarray, y: np.ndarray) -> bool:
+        """Whether two state arrays are equal on every process."""
+        return self.all(bool(np.array_equal(x, y)))
