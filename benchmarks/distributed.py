@@ -82,7 +82,7 @@ def worker(argv) -> int:
         comm = MPI.COMM_WORLD
         rank, ranks = comm.Get_rank(), comm.Get_size()
         traj = simulate_distributed(model, "linearized_implicit", dt, a.steps, record=False, linear_rtol=1e-6,
-                                    petsc_options=a.petsc_options or None, jacobian="spd")
+                                    petsc_options=a.petsc_options or None)
         rss = comm.gather(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, root=0)
         init, solver = float("nan"), f"petsc CG+GAMG, {ranks} rank(s)"
         if rank == 0:

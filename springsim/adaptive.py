@@ -172,10 +172,12 @@ def simulate_adaptive(model: Model, integrator: str | Integrator, t_end: float, 
     integrator.reset()
     grow = min(grow, integrator.max_step_ratio)
     expo = -1.0 / (integrator.order + 1)
-    free = model.free_particles
-    fixed = model.particle_fixed
+    system = integrator.system
+    fixed = system.fixed
 
     run = RunRecorder(model, integrator, state)
+    if not run.is_root:
+        progress = None
     run.meta.update(t_end=t_end, time_rtol=float(time_rtol), time_atol=float(time_atol))
     info: dict[str, Any] = dict(accepted=0, rejected=0, newton_failures=0, failed_attempts=0, newton_iterations=0,
                                 linear_iterations=0, h_min=np.inf, h_max=0.0, h_mean=0.0)
@@ -184,8 +186,10 @@ def simulate_adaptive(model: Model, integrator: str | Integrator, t_end: float, 
     t = 0.0
     just_rejected = False
     attempts = 0
-    estimating = integrator.estimating
+    estimating, retake = integrator.estimating, getattr(integrator, "retake", False)
     integrator.estimating = True  # restored when the run ends
+    if retake:
+        integrator.retake = False  # a failed step is retried smaller here, not retaken in substeps
     try:
         with single_blas_thread():
             while fi < t_frames.size:
@@ -225,9 +229,9 @@ def simulate_adaptive(model: Model, integrator: str | Integrator, t_end: float, 
                 eq, ev = integrator.error_estimate
                 q0, v0 = run.state.particle_q, run.state.particle_qd
                 q1, v1 = run.scratch.particle_q, run.scratch.particle_qd
-                err = _error_norm(eq, q0, q1, free, time_rtol, time_atol)
+                err = _error_norm(system, eq, q0, q1, time_rtol, time_atol)
                 if error_on == "qv":
-                    err = np.sqrt(0.5 * (err**2 + _error_norm(ev, v0, v1, free, time_rtol, time_atol)**2))
+                    err = np.sqrt(0.5 * (err**2 + _error_norm(system, ev, v0, v1, time_rtol, time_atol)**2))
                 fac = safety * err**expo if err > 0 else grow
                 if err > 1.0 and h > h_min * (1 + 1e-12):
                     info["rejected"] += 1
@@ -267,10 +271,16 @@ def simulate_adaptive(model: Model, integrator: str | Integrator, t_end: float, 
         raise run.interrupted(f"t={t:g} s of {t_end:g} s") from None
     finally:
         integrator.estimating = estimating
+        if retake:
+            integrator.retake = True
     return run.finish()
 
 
-def _error_norm(e, y0, y1, free, rtol, atol):
-    """Weighted RMS norm of the error estimate ``e`` over free particles."""
-    sc = atol + rtol * np.maximum(np.abs(y0[free]), np.abs(y1[free]))
-    return float(np.sqrt(np.mean((e[free] / sc) ** 2))) if free.size else 0.0
+def _error_norm(system, e, y0, y1, rtol, atol):
+    """Weighted RMS norm of the error estimate ``e`` over the free particles of every process."""
+    count = system.free_dof_count
+    if not count:
+        return 0.0
+    rows = system.free_rows
+    sc = atol + rtol * np.maximum(np.abs(rows(y0)), np.abs(rows(y1)))
+    return float(np.sqrt(system.sum(float(np.sum((rows(e) / sc) ** 2))) / count))

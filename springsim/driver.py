@@ -338,11 +338,14 @@ def run_metadata(model, integrator) -> dict:
     from . import __version__
 
     solver = getattr(integrator, "solver", None)
+    backend = integrator.system.metadata()
     name, source = (model.metadata.get(k) for k in ("name", "source"))
+    linear = getattr(solver, "name", None) or ("petsc" if integrator.implicit and backend["backend"] == "petsc"
+                                               else None)
     return {"springsim_version": __version__, "model_fingerprint": model.fingerprint(),
             "scene": None if name is None else str(name), "source": None if source is None else str(source),
-            "integrator": integrator.name, "linear_solver": getattr(solver, "name", None),
-            "jacobian": getattr(integrator, "jacobian", None)}
+            "integrator": integrator.name, "linear_solver": linear,
+            "jacobian": getattr(integrator, "jacobian", None), **backend}
 
 
 class RunRecorder:
@@ -363,12 +366,16 @@ class RunRecorder:
         _check_integrator(model, integrator)
         self.model = model
         self.integrator = integrator
-        self.state = _as_state(model, state)  # the state after the last completed step
+        self.system = system = integrator.system
+        full = _as_state(model, state)
+        # the state after the last completed step, as the system's state arrays (every particle serially)
+        self.state = State(*system.local_state(full.particle_q, full.particle_qd))
         self.scratch = self.state.copy()      # the integrator writes the next state here
-        self.bound = EnergyBound(model, self.state.particle_q, self.state.particle_qd) if check_energy else None
+        self.bound = EnergyBound(model, full.particle_q, full.particle_qd, system=system) if check_energy else None
+        self.is_root = system.is_root
         self.t = [0.0]
-        self.q = [self.state.particle_q.copy()]
-        self.qd = [self.state.particle_qd.copy()]
+        self.q = [full.particle_q.copy()] if self.is_root else []
+        self.qd = [full.particle_qd.copy()] if self.is_root else []
         self.stats: list[StepStats] = []
         self.time = 0.0        # simulated time of ``state``
         self.recorded = True   # whether ``state`` is the last frame
@@ -379,19 +386,28 @@ class RunRecorder:
         self.meta = run_metadata(model, integrator)
 
     def add_frame(self, t: float, q: np.ndarray, qd: np.ndarray) -> None:
-        """Record a frame (copied)."""
+        """Record a frame of state arrays (gathered on the root process, copied). Collective."""
+        q, qd = self.system.gather_state(q, qd)
         self.t.append(float(t))
-        self.q.append(np.array(q, copy=True))
-        self.qd.append(np.array(qd, copy=True))
+        if self.is_root:
+            self.q.append(q)
+            self.qd.append(qd)
 
-    def trajectory(self, keep_last: bool = False) -> Trajectory:
-        """The frames so far; ``keep_last`` adds the last completed state if it was not recorded."""
+    def trajectory(self, keep_last: bool = False) -> Trajectory | None:
+        """The frames so far (None on processes other than the root); ``keep_last`` adds the last completed state
+        if it was not recorded (collective then)."""
         if keep_last and not self.recorded:
             self.add_frame(self.time, self.state.particle_q, self.state.particle_qd)
             self.recorded = True
+        if not self.is_root:
+            return None
+        meta = dict(self.meta)
+        timings = getattr(self.system, "timings", None)  # a distributed system's time per phase [s]
+        if timings:
+            meta["timings"] = {k: float(v) for k, v in timings.items()}
         return Trajectory(np.array(self.t), np.array(self.q), np.array(self.qd), self.stats,
                           time.perf_counter() - self._wall0, time.process_time() - self._cpu0,
-                          None if self.adaptive_stats is None else dict(self.adaptive_stats), dict(self.meta))
+                          None if self.adaptive_stats is None else dict(self.adaptive_stats), meta)
 
     def kept(self) -> str:
         n = len(self.t) + (not self.recorded)
@@ -403,13 +419,14 @@ class RunRecorder:
             return self.integrator.step(self.state, self.scratch, dt)
 
     def problem(self) -> str | None:
-        """Why the state in :attr:`scratch` is a blow-up (NaN/inf, energy bound), or None."""
+        """Why the state in :attr:`scratch` is a blow-up (NaN/inf, energy bound), or None; the same on every
+        process."""
         s = self.scratch
-        if not s.is_finite():
+        if not self.system.all_finite(s.particle_q, s.particle_qd):
             bad = ~(np.isfinite(s.particle_q).all(axis=1) & np.isfinite(s.particle_qd).all(axis=1))
-            p = int(np.flatnonzero(bad)[0])
-            return (f"particle {p} has a non-finite position or velocity ({int(bad.sum())} particle(s) "
-                    f"affected)")
+            count = int(self.system.sum(int(bad.sum())))
+            where = f"particle {int(np.flatnonzero(bad)[0])}" if self.system.holds_fixed else "a particle"
+            return f"{where} has a non-finite position or velocity ({count} particle(s) affected)"
         if self.bound is not None:
             w = self.bound.exceeded(s.particle_q, s.particle_qd)
             if w is not None:
@@ -444,10 +461,12 @@ class RunRecorder:
         return SimulationError(f"simulation stopped at step {step} (t={t_new:g} s): {type(err).__name__}: {err}; "
                                f"{self.kept()}", self.trajectory(keep_last=True), step=step)
 
-    def finish(self) -> Trajectory:
-        """The trajectory, after reporting failed steps and fallbacks once (warnings)."""
+    def finish(self) -> Trajectory | None:
+        """The trajectory (None on processes other than the root), after reporting failed steps and fallbacks
+        once (warnings, on the root)."""
         traj = self.trajectory()
-        report(traj, self.integrator, stacklevel=4)
+        if traj is not None:
+            report(traj, self.integrator, stacklevel=4)
         return traj
 
 
@@ -497,13 +516,18 @@ def simulate(model: Model, integrator: Integrator, dt: float, steps: int, *, sta
     check_energy : bool
         Stop when a finite state holds more energy than the forces can supply (module docstring).
 
+    Returns
+    -------
+    Trajectory or None
+        The frames; None on the processes other than the root of a distributed system (the root gathers them).
+
     Raises
     ------
     TypeError, ValueError
         On invalid arguments (naming the parameter).
     SimulationError
         On a blow-up (NaN/inf or the energy bound); ``err.trajectory`` has the finite frames before
-        it. Also wraps any other :class:`~springsim.errors.SpringsimError` the integrator raises
+        it (None on processes other than the root of a distributed system). Also wraps any other :class:`~springsim.errors.SpringsimError` the integrator raises
         mid-run (e.g. ``SolverError``), kept as ``__cause__``.
     SimulationInterrupted
         On KeyboardInterrupt (also from ``progress``), with the frames so far.
@@ -511,8 +535,8 @@ def simulate(model: Model, integrator: Integrator, dt: float, steps: int, *, sta
     dt = _positive_time("dt", dt)
     steps = _count("steps", steps, 0)
     frame_every = _count("frame_every", frame_every, 1)
-    progress = as_progress(progress)
     run = RunRecorder(model, integrator, state, check_energy=check_energy)
+    progress = as_progress(progress) if run.is_root else None
     run.meta.update(dt=dt, steps=steps, frame_every=frame_every)
     k = 0
     try:

@@ -62,9 +62,12 @@ class EnergyBound:
         Initial state.
     growth : float
         Allowed excess over the bound, in units of the energy scale (default 10).
+    system : System, optional
+        The states checked are then the state arrays of this system (:mod:`springsim.system`), and the sums
+        are over every process.
     """
 
-    def __init__(self, model, q0: np.ndarray, qd0: np.ndarray, *, growth: float = 10.0):
+    def __init__(self, model, q0: np.ndarray, qd0: np.ndarray, *, growth: float = 10.0, system=None):
         terms = make_force_terms(model, skip_fixed=False)
         floors = [t.potential_floor() for t in terms]
         # terms without a finite lower bound (uniform gravity) are evaluated every step, in W
@@ -81,14 +84,26 @@ class EnergyBound:
         scale = (abs(self.e0) + t0 + sum(abs(p) for p in parts) - floor
                  + float(self._mass.sum()) * abs(model.gravity) * max(extent, 1.0))
         self.limit = self.w_max + growth * scale
+        # the work W of the state arrays of a system (:mod:`springsim.system`): its particles' kinetic energy and
+        # unbounded potentials, summed over every process, plus the constant part of the particles it leaves out
+        self._system, self._offset = system, 0.0
+        if system is not None:
+            self._unbounded = [t for t in system.terms if not t.pairwise and not np.isfinite(t.potential_floor())]
+            self._sqrt_mass = np.repeat(np.sqrt(system.particle_mass), 3).reshape(-1, 3)
+            self._scaled = np.empty_like(self._sqrt_mass)
+            if not system.holds_fixed:
+                fixed = model.particle_fixed[:, None]
+                full = [t for t, f in zip(terms, floors) if not np.isfinite(f)]
+                self._offset = float(sum(t.potential_energy(np.where(fixed, q0, 0.0)) for t in full))
 
     def work(self, q: np.ndarray, qd: np.ndarray) -> float:
-        """``W = T + V_gravity`` [J] of a state."""
+        """``W = T + V_gravity`` [J] of a state (the state arrays of ``system`` when one was given)."""
         # T = |sqrt(m) qd|^2 / 2: one elementwise product into a buffer and one dot, several times faster than a
         # three-operand einsum on large states (it runs after every step)
         v = np.multiply(qd, self._sqrt_mass, out=self._scaled).reshape(-1)
         kinetic = 0.5 * float(np.dot(v, v))
-        return kinetic + float(sum(t.potential_energy(q) for t in self._unbounded))
+        w = kinetic + float(sum(t.potential_energy(q) for t in self._unbounded))
+        return w if self._system is None else self._system.sum(w) + self._offset
 
     def exceeded(self, q: np.ndarray, qd: np.ndarray) -> float | None:
         """``W`` when it is above the limit (or not a number: the sums overflowed), else None."""

@@ -151,16 +151,29 @@ class SolverConfig:
     linear_solver: str | None = option(None, kind="name", cli="--solver", metavar="NAME", to="integrator",
                                        kwarg="solver", help="linear solver of implicit integrators (default: auto)")
     jacobian: str | None = option(None, kind="name", cli="--jacobian", metavar="MODE", to="integrator",
-                                  help="Jacobian mode (default: exact where the solver takes any matrix, else spd)")
+                                  help="Jacobian mode (default: mixed for minimize stages, exact for pa2, else exact "
+                                       "where the solver takes any matrix and spd where it needs SPD matrices)")
     linear_rtol: float | None = option(None, kind="float", cli="--rtol", metavar="R", lo=0.0, strict=True,
                                        to="solver", kwarg="rtol",
                                        help="relative residual tolerance of iterative linear solvers (default 1e-6)")
+    stage_solver: str | None = option(None, kind="name", cli="--stage-solver", metavar="RULE", to="integrator",
+                                      help="how implicit stages are solved: minimize (the incremental potential, "
+                                           "projected Newton and a line search on it; the default), residual "
+                                           "(Newton with a line search on the residual) or pa2 (the course's rule)")
+    force_rtol: float | None = option(None, kind="float", cli="--force-rtol", metavar="R", lo=0.0, strict=True,
+                                      to="integrator",
+                                      help="minimize stages: stop when the force imbalance |grad E| is below this "
+                                           "fraction of the stage's force scale (default 1e-6)")
+    force_atol: float | None = option(None, kind="float", cli="--force-atol", metavar="F", lo=0.0,
+                                      to="integrator",
+                                      help="minimize stages: absolute force imbalance tolerance [N] (default 0)")
     newton_tol: float | None = option(None, kind="float", cli="--newton-tol", metavar="TOL", lo=0.0, strict=True,
-                                      to="integrator", help="Newton update tolerance on |dv| [m/s] (default 1e-5)")
+                                      to="integrator", help="residual and pa2 stages: Newton update tolerance on "
+                                                            "|dv| [m/s] (default 1e-5)")
     newton_maxiter: int | None = option(None, kind="int", cli="--newton-maxiter", metavar="N", lo=1, hi=10**6,
                                         to="integrator",
-                                        help="Newton iteration limit (default 5 for implicit_euler, 50 for bdf2, "
-                                             "tr_bdf2 and energy_momentum)")
+                                        help="Newton iteration limit of a stage (default 50 for minimize stages, 5 "
+                                             "for pa2; residual: 5 for implicit_euler, 50 for the others)")
     residual_rtol: float | None = option(None, kind="float", cli="--residual-rtol", metavar="R", lo=0.0,
                                          strict=True, to="integrator",
                                          help="Newton residual tolerance, relative to the balanced terms "
@@ -228,6 +241,8 @@ class SolverConfig:
         for name, what, module, choices in (("backend", "backend", ".options", "BACKENDS"),
                                             ("partitioner", "partitioner", ".distributed.partition", "PARTITIONERS"),
                                             ("forcing", "forcing rule", ".integrators._implicit", "FORCING_RULES"),
+                                            ("stage_solver", "stage solver", ".integrators._implicit",
+                                             "STAGE_SOLVERS"),
                                             ("jacobian", "jacobian mode", ".forces", "JACOBIAN_MODES")):
             value = getattr(self, name)
             if value is not None:
@@ -359,12 +374,25 @@ class SolverConfig:
         return sorted(set(out))
 
     def make_integrator(self, model):
-        """The configured integrator for ``model``; an invalid combination names its ``solver.<key>``."""
+        """The configured integrator for ``model``, on the configured backend (the petsc one builds a
+        :class:`~springsim.distributed.DistributedSystem`: collective); an invalid combination names its
+        ``solver.<key>``."""
         from .integrators import make_integrator
 
         by_kwarg = {(f.metadata["kwarg"] or f.name): f.name for f in fields(self)}
+        opts = self.integrator_options()
         try:
-            return make_integrator(self.integrator, model, **self.integrator_options())
+            if self.backend == "petsc":
+                from .distributed import make_distributed
+
+                if opts.pop("solver", "auto") != "auto":
+                    raise SceneError("solver", "the petsc backend solves with PETSc's KSP; choose its method with "
+                                               "petsc_options (-ksp_type, -pc_type)")
+                linear = opts.pop("solver_options", {})
+                return make_distributed(model, self.integrator, linear_rtol=linear.get("rtol", 1e-6),
+                                        petsc_options=self.petsc_options, partitioner=self.partitioner or "contiguous",
+                                        **opts)
+            return make_integrator(self.integrator, model, **opts)
         except SceneError as e:
             name = by_kwarg.get(e.path)
             raise (SceneError(f"solver.{self.yaml_key(name)}", e.message) if name else e) from None

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import sys
 
-from ..errors import SceneError, SimulationError, SpringsimError
+from ..errors import SimulationError, SpringsimError
 
 __all__ = ["agree", "run_distributed", "abort_on_error"]
 
@@ -49,30 +49,19 @@ def abort_on_error(exc: BaseException) -> None:
 
 
 def run_distributed(args, scene, cfg) -> int:
-    """Run ``scene`` with the petsc backend as configured (see the module docstring); the exit status."""
-    from ..distributed import DISTRIBUTED_INTEGRATORS, import_petsc
-    from .run import _Exit, _provenance, print_rows, save_or_rescue, summary_rows_distributed, warn_failed_steps
+    """Run ``scene`` with the petsc backend as configured (see the module docstring); the exit status.
+
+    The run is the serial one (:func:`springsim.cli.run.execute`: the same integrators, adaptive stepping and
+    driver) over a :class:`~springsim.distributed.DistributedSystem`; rank 0 prints and saves.
+    """
+    from ..distributed import env_rank, import_petsc
+    from .run import _Exit, _provenance, execute, print_rows, save_or_rescue, summary_lines, warn_failed_steps
 
     import_petsc()  # BackendUnavailable (a SpringsimError): one line with the install hint
-    if cfg.integrator not in DISTRIBUTED_INTEGRATORS:
-        raise SceneError("solver.type", f"{cfg.integrator!r} has no distributed version; the petsc backend runs "
-                                        f"{', '.join(DISTRIBUTED_INTEGRATORS)}")
-    if cfg.adaptive:
-        raise SceneError("solver.time_rtol", "adaptive time stepping is not available with the petsc backend")
-    if cfg.linear_solver not in (None, "auto"):
-        raise SceneError("solver.linear_solver", "the petsc backend solves with PETSc's KSP; choose its method "
-                                                 "with petsc_options (-ksp_type, -pc_type)")
-    from ..distributed.driver import simulate_distributed
-    from ..progress import as_progress
-
-    opts = {k: v for k, v in cfg.integrator_options().items() if k not in ("solver", "solver_options")}
-    rtol = cfg.linear_rtol if cfg.linear_rtol is not None else 1e-6
+    root = env_rank() == 0
     record = args.out is not None
     try:
-        traj = simulate_distributed(scene.model, cfg.integrator, cfg.dt, cfg.run_steps(), frame_every=args.frame_every,
-                                    record=record, progress=as_progress(True), linear_rtol=rtol,
-                                    petsc_options=cfg.petsc_options, partitioner=cfg.partitioner or "contiguous",
-                                    **opts)
+        integrator, traj = execute(scene, cfg, record=record, frame_every=args.frame_every, quiet=not root)
     except SimulationError as e:
         if e.trajectory is None:  # not the root rank: the root reports
             raise _Exit(1) from None
@@ -88,10 +77,10 @@ def run_distributed(args, scene, cfg) -> int:
     if args.out is not None:
         _provenance(traj, scene, cfg, args.scene)
         save_or_rescue(traj, args.out)
-    warn_failed_steps(traj)
+    failed = warn_failed_steps(traj, keep_going=args.keep_going)
     if not args.quiet:
-        rows = summary_rows_distributed(scene, cfg, traj)
+        rows = summary_lines(scene, cfg, integrator, traj)
         if args.out is not None:
             rows.append(("output", f"{args.out} ({traj.frame_count} frames)"))
         print_rows(rows)
-    return 0
+    return 1 if failed and not args.keep_going else 0

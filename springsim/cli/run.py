@@ -36,12 +36,13 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
     from ..distributed.partition import PARTITIONERS
     from ..forces import JACOBIAN_MODES
     from ..integrators import INTEGRATORS
-    from ..integrators._implicit import FORCING_RULES
+    from ..integrators._implicit import FORCING_RULES, STAGE_SOLVERS
     from ..linsolve import LINEAR_SOLVERS
 
     SolverConfig.add_arguments(p, choices={"integrator": list(INTEGRATORS), "linear_solver": list(LINEAR_SOLVERS),
                                            "jacobian": list(JACOBIAN_MODES), "backend": list(BACKENDS),
-                                           "partitioner": list(PARTITIONERS), "forcing": list(FORCING_RULES)})
+                                           "partitioner": list(PARTITIONERS), "forcing": list(FORCING_RULES),
+                                           "stage_solver": list(STAGE_SOLVERS)})
     g = p.add_mutually_exclusive_group()
     g.add_argument("-v", "--verbose", action="count", default=0,
                    help="also log every set-up phase with its time (default: progress every few seconds and "
@@ -78,6 +79,9 @@ def _add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", metavar="FILE.npz", help="write frames t (F,), q (F,N,3), qd (F,N,3) to an .npz")
     p.add_argument("--frame-every", type=int_at_least(1, MAX_STEPS), default=1, metavar="K",
                    help="record every K-th step in --out (first and last always; default 1)")
+    p.add_argument("--keep-going", action="store_true",
+                   help="exit with status 0 even when steps did not meet their criteria after their retakes "
+                        "(default: status 1; the frames are kept either way)")
 
 
 def load_and_configure(args: argparse.Namespace):
@@ -92,7 +96,7 @@ def load_and_configure(args: argparse.Namespace):
     return scene, cfg
 
 
-def execute(scene, cfg, *, record: bool = True, frame_every: int = 1, progress=True):
+def execute(scene, cfg, *, record: bool = True, frame_every: int = 1, progress=True, quiet: bool = False):
     """Run ``scene`` as configured by ``cfg``: ``(integrator, trajectory)``; steps that did not meet their criteria
     and fallbacks are reported by the caller (from the trajectory), not as Python warnings. ``progress`` as for
     :func:`springsim.simulate` (default: log lines, :class:`springsim.progress.ProgressLog`)."""
@@ -102,7 +106,7 @@ def execute(scene, cfg, *, record: bool = True, frame_every: int = 1, progress=T
 
     steps = cfg.run_steps()
     unused = cfg.unused()
-    if unused:
+    if unused and not quiet:
         print(f"springsim: warning: {cfg.integrator} does not use {', '.join(unused)}"
               f"{' (max_step needs time_rtol or time_atol)' if 'max_step' in unused else ''}; ignored",
               file=sys.stderr)
@@ -127,13 +131,17 @@ def execute(scene, cfg, *, record: bool = True, frame_every: int = 1, progress=T
     return integrator, traj
 
 
-def warn_failed_steps(traj) -> None:
-    """One ``springsim: warning:`` line when steps did not meet their criteria."""
+def warn_failed_steps(traj, *, keep_going: bool = True) -> int:
+    """One ``springsim: error:`` line (``warning:`` with ``keep_going``) when steps did not meet their criteria
+    after their retakes; the number of such steps."""
     s = traj.summary()
     if s["failed_steps"]:
         first = next(x for x in traj.stats if not x.ok)
-        print(f"springsim: warning: {s['failed_steps']} of {s['steps']} step(s) did not meet their criteria "
-              f"(first: {'; '.join(first.failures)})", file=sys.stderr)
+        kind = "warning" if keep_going else "error"
+        print(f"springsim: {kind}: {s['failed_steps']} of {s['steps']} step(s) did not meet their criteria "
+              f"(first: {'; '.join(first.failures)}); their results are kept"
+              f"{'' if keep_going else ' (--keep-going: exit status 0)'}", file=sys.stderr)
+    return s["failed_steps"]
 
 
 def _fmt_s(s: float) -> str:
@@ -181,11 +189,18 @@ def summary_lines(scene, cfg, integrator, traj) -> list[tuple[str, str]]:
     rows = _model_rows(scene)
     if integrator.implicit:
         solver = integrator.solver
-        chosen = f" -> {solver.last_choice}: {solver.last_reason}" if getattr(solver, "last_choice", None) else ""
-        rows.append(("integrator", f"{cfg.integrator} (linear solver {solver.name}{chosen}, "
+        if solver is None:
+            linear = "PETSc KSP"
+        else:
+            chosen = f" -> {solver.last_choice}: {solver.last_reason}" if getattr(solver, "last_choice", None) else ""
+            linear = f"linear solver {solver.name}{chosen}"
+        rows.append(("integrator", f"{cfg.integrator} ({linear}, {integrator.stage_solver} stages, "
                                    f"jacobian {integrator.jacobian})"))
     else:
         rows.append(("integrator", cfg.integrator))
+    meta = traj.meta
+    if meta.get("backend") == "petsc":
+        rows.insert(len(rows) - 1, ("backend", f"petsc, {meta['ranks']} MPI rank(s)"))
     a = traj.adaptive_stats
     if a:
         rows.append(("steps", f"{a['accepted']} adaptive (mean h {a['h_mean']:.3g} s, h in [{a['h_min']:.3g}, "
@@ -203,6 +218,10 @@ def summary_lines(scene, cfg, integrator, traj) -> list[tuple[str, str]]:
             ("linear solve per step", _fmt_s(s["solve_s"])),
             ("other per step", _fmt_s(s["other_s"])),
         ] + _newton_rows(s)
+    tm = meta.get("timings", {})
+    if tm and s["steps"]:
+        rows.append(("per step (rank 0)", ", ".join(f"{k[:-2]} {_fmt_s(v / s['steps'])}" for k, v in tm.items()
+                                                    if v)))
     if cfg.adaptive:
         rows.append(("time tolerances", f"time_rtol {cfg.time_rtol or cfg.time_atol:g}, "
                                         f"time_atol {cfg.time_atol or cfg.time_rtol:g}"))
@@ -257,27 +276,6 @@ def _provenance(traj, scene, cfg, scene_path) -> None:
     with open(scene_path, "rb") as fh:
         traj.meta["scene_sha256"] = hashlib.file_digest(fh, "sha256").hexdigest()
     traj.meta["run_options"] = {k: v for k, v in dataclasses.asdict(cfg).items() if v is not None}
-
-
-def summary_rows_distributed(scene, cfg, traj) -> list[tuple[str, str]]:
-    """The rows of the run summary of a distributed run (``traj.meta`` has the backend's timings)."""
-    s = traj.summary()
-    meta = traj.meta
-    steps = max(s["steps"], 1)
-    rows = _model_rows(scene) + [
-        ("backend", f"petsc, {meta['ranks']} MPI rank(s)"),
-        ("integrator", cfg.integrator + (f" (PETSc KSP, jacobian {meta['jacobian']})" if meta["jacobian"] else "")),
-        ("steps", f"{s['steps']} x dt = {cfg.dt:g} s"),
-        ("simulated time", f"{traj.t[-1]:g} s"),
-        ("wall time", f"{_fmt_s(s['wall_s'])} (CPU {_fmt_s(s['cpu_s'])}, rank 0)"),
-        ("time per step", _fmt_s(s["step_s"])),
-    ]
-    tm = meta.get("timings", {})
-    if tm:
-        rows.append(("per step (rank 0)", ", ".join(f"{k[:-2]} {_fmt_s(v / steps)}" for k, v in tm.items() if v)))
-    if meta["jacobian"]:
-        rows += _newton_rows(s)
-    return rows
 
 
 def error_text(e: Exception, scene_path=None) -> str:
@@ -367,13 +365,13 @@ def _run(args: argparse.Namespace) -> int:
     if args.out is not None:
         _provenance(traj, scene, cfg, args.scene)
         save_or_rescue(traj, args.out)
-    warn_failed_steps(traj)
+    failed = warn_failed_steps(traj, keep_going=args.keep_going)
     if not args.quiet:
         rows = summary_lines(scene, cfg, integrator, traj)
         if args.out is not None:
             rows.append(("output", f"{args.out} ({traj.frame_count} frames)"))
         print_rows(rows)
-    return 0
+    return 1 if failed and not args.keep_going else 0
 
 
 class _RunCommand:

@@ -8,27 +8,25 @@ only this package imports; the rest of springsim works without them.
   plain numpy.
 * :mod:`~springsim.distributed.system`: ghost exchange, forces, the distributed assembly into a PETSc AIJ
   matrix of block size 3, the KSP solve (CG + GAMG with the rigid-body near-null space by default).
-* :mod:`~springsim.distributed.integrators`: explicit Euler, symplectic Euler, midpoint, linearized
-  implicit Euler and implicit Euler (Newton) on the owned state.
-* :mod:`~springsim.distributed.driver`: :func:`simulate_distributed`, frames gathered on the root rank.
+* :mod:`~springsim.distributed.driver`: :func:`make_distributed` (an integrator of
+  :mod:`springsim.integrators` over the distributed system: every integrator, adaptive stepping included, runs
+  on it unchanged) and :func:`simulate_distributed`, frames gathered on the root rank.
 
 From the command line: ``mpiexec -n 4 springsim run scene.yaml --backend petsc``.
 """
 
 from ._petsc import BackendUnavailable, env_rank, env_size, import_petsc, petsc_available
-from .integrators import DISTRIBUTED_INTEGRATORS, make_distributed_integrator
 from .partition import LocalPart, contiguous_offsets, partition
 
-__all__ = ["BackendUnavailable", "import_petsc", "petsc_available", "env_rank", "env_size", "DISTRIBUTED_INTEGRATORS",
-           "make_distributed_integrator", "LocalPart", "contiguous_offsets", "partition", "simulate_distributed",
-           "DistributedSystem"]
+__all__ = ["BackendUnavailable", "import_petsc", "petsc_available", "env_rank", "env_size", "LocalPart",
+           "contiguous_offsets", "partition", "simulate_distributed", "make_distributed", "DistributedSystem"]
 
 
 def __getattr__(name):  # the PETSc-backed parts import petsc4py only when used
-    if name == "simulate_distributed":
-        from .driver import simulate_distributed
+    if name in ("simulate_distributed", "make_distributed"):
+        from . import driver
 
-        return simulate_distributed
+        return getattr(driver, name)
     if name == "DistributedSystem":
         from .system import DistributedSystem
 

@@ -37,6 +37,7 @@ from ..assembly import SystemAssembler
 from ..errors import SceneError
 from ..forces import make_force_terms
 from ..linsolve import LinearSolveResult
+from ..system import System
 from ._petsc import import_petsc
 from .partition import PARTITIONERS, LocalPart, contiguous_offsets, pair_families, partition, system_order
 
@@ -115,7 +116,20 @@ def graph_partition(model, comm, method: str) -> tuple[np.ndarray, np.ndarray]:
     return order, np.concatenate([[0], np.cumsum(np.bincount(owner, minlength=size))])
 
 
-class DistributedSystem:
+class _Operator:
+    """``A @ x`` on DOF vectors for the matrix a :class:`DistributedSystem` assembled last."""
+
+    def __init__(self, system):
+        self.system = system
+
+    def __matmul__(self, x):
+        s = self.system
+        s.b.array[:] = np.asarray(x).ravel()
+        s.A.mult(s.b, s.w)
+        return s.w.array.copy()
+
+
+class DistributedSystem(System):
     """Rank-local part of the distributed system of ``model`` (build it on every rank of ``comm``).
 
     Parameters
@@ -135,17 +149,28 @@ class DistributedSystem:
         One of :data:`PARTITIONERS`: ``contiguous`` (default) keeps the serial numbering, so the gathered matrix
         is the serial one; a graph partitioner gives each rank a compact part of the particle graph (fewer
         ghosts on scenes numbered at random) and numbers the system part by part.
+    force_kernels : {"auto", "numba", "numpy"}
+        Compiled force passes or the pure numpy path (:func:`springsim.forces.make_force_terms`).
+
+    Notes
+    -----
+    It implements :class:`springsim.system.System`: state arrays are the owned particles (all free), DOF vectors
+    their three components, every reduction an MPI all-reduce, so the integrators run on it unchanged.
     """
+
+    #: Fixed particles are not in the state arrays: the energy bound adds their constant gravity itself.
+    holds_fixed = False
 
     def __init__(self, model, comm=None, *, rtol: float = 1e-6, atol: float = 0.0, maxiter: int = 1000,
                  petsc_options=None, ksp_type: str | None = None, pc_type: str = "gamg",
-                 partitioner: str = "contiguous"):
+                 partitioner: str = "contiguous", force_kernels: str = "auto"):
         PETSc, MPI = import_petsc()
         self.PETSc, self.MPI = PETSc, MPI
         self.comm = PETSc.COMM_WORLD if comm is None else comm
         self.mpi = self.comm.tompi4py()
         self.rank, self.size = self.comm.getRank(), self.comm.getSize()
         self.model = model
+        self.partitioner = partitioner
         if partitioner not in PARTITIONERS:
             raise SceneError("partitioner", f"must be one of {', '.join(PARTITIONERS)}, got {partitioner!r:.60}")
         order = offsets = None
@@ -173,9 +198,17 @@ class DistributedSystem:
         self.v_loc = np.array(model.particle_qd[p.local_particles])
         self.v_loc[p.n_local_free:] = 0.0
         self.f_loc = np.zeros_like(self.q_loc)
-        self.pair_terms = [t for t in make_force_terms(p.pair_model) if t.pairwise]
-        self.particle_terms = [t for t in make_force_terms(p.particle_model) if not t.pairwise]
+        self.g_loc = np.array(self.q_loc)   # damping geometry (owned, ghosts; fixed rows constant)
+        self.q0_loc = np.array(self.q_loc)  # start positions of energy-momentum steps
+        self.pair_terms = [t for t in make_force_terms(p.pair_model, kernels=force_kernels) if t.pairwise]
+        self.particle_terms = [t for t in make_force_terms(p.particle_model, kernels=force_kernels) if not t.pairwise]
+        self.terms = self.pair_terms + self.particle_terms
         self.mass = np.array(model.particle_mass[p.local_particles[:p.n_own]])
+        self.particle_mass = self.mass
+        self.fixed = np.zeros(0, dtype=np.int64)  # no rank owns a fixed particle
+        self.root = 0
+        self.is_root = self.rank == self.root
+        self._last_assembly_s = 0.0
 
         # PETSc vectors and the ghost scatter
         own3, F3, nlf = 3 * p.n_own, 3 * self.free_count, p.n_local_free
@@ -218,55 +251,125 @@ class DistributedSystem:
             text = " ".join(shlex.split(str(options)))
         self.PETSc.Options().insertString(text)
 
-    # -- global reductions ---------------------------------------------------------------------------------------
-    def norm(self, x_own: np.ndarray) -> float:
-        """2-norm over all ranks of an owned array."""
-        return float(np.sqrt(self.mpi.allreduce(float(np.dot(x_own.ravel(), x_own.ravel())))))
+    # -- the System interface: set-up and reductions -------------------------------------------------------------
+    def metadata(self) -> dict:
+        return {"backend": "petsc", "ranks": self.size, "partitioner": self.partitioner}
 
-    def all_finite(self, *arrays) -> bool:
-        """Whether ``arrays`` are finite on every rank."""
-        ok = all(bool(np.all(np.isfinite(a))) for a in arrays)
-        return bool(self.mpi.allreduce(ok, op=self.MPI.LAND))
+    def local_state(self, q, qd):
+        own = self.part.local_particles[:self.part.n_own]
+        return np.array(q[own], dtype=np.float64), np.array(qd[own], dtype=np.float64)
+
+    def gather_state(self, q, qd):
+        return self.gather_full(q, qd, root=self.root)
+
+    @property
+    def linear_rtol(self) -> float:
+        return self.rtol
+
+    def default_jacobian(self) -> str:
+        return "spd"  # CG + GAMG, PETSc's default here, needs a symmetric positive definite matrix
+
+    def sum(self, value):
+        return float(self.mpi.allreduce(float(value)))
+
+    def max(self, value):
+        return float(self.mpi.allreduce(float(value), op=self.MPI.MAX))
+
+    def all(self, flag):
+        return bool(self.mpi.allreduce(bool(flag), op=self.MPI.LAND))
+
+    def free_rows(self, x):
+        return x  # every owned particle is free
+
+    @property
+    def free_dof_count(self) -> int:
+        return 3 * self.free_count
+
+    def gather(self, x):
+        return x.reshape(-1)
+
+    def scatter_add(self, target, dx, scale=1.0):
+        target += scale * dx.reshape(-1, 3)
 
     # -- ghosts, forces ------------------------------------------------------------------------------------------
-    def exchange(self, q_own: np.ndarray, v_own: np.ndarray) -> None:
-        """Fill the local positions and velocities (owned and ghosts) from the owned arrays of every rank."""
-        t0 = time.perf_counter()
+    def _exchange_into(self, own: np.ndarray, loc: np.ndarray) -> None:
+        """Fill the free local rows of ``loc`` (owned and ghosts) from the owned arrays ``own`` of every rank."""
         nlf = self.part.n_local_free
-        for own, loc in ((q_own, self.q_loc), (v_own, self.v_loc)):
-            self.x.array[:] = own.ravel()
-            self.scatter.scatter(self.x, self.loc, addv=self.PETSc.InsertMode.INSERT_VALUES,
-                                 mode=self.PETSc.ScatterMode.FORWARD)
-            loc[:nlf] = self.loc.array.reshape(-1, 3)
+        self.x.array[:] = own.ravel()
+        self.scatter.scatter(self.x, self.loc, addv=self.PETSc.InsertMode.INSERT_VALUES,
+                             mode=self.PETSc.ScatterMode.FORWARD)
+        loc[:nlf] = self.loc.array.reshape(-1, 3)
+
+    def exchange(self, q_own: np.ndarray, v_own: np.ndarray | None = None, *, geometry=None, q_start=None) -> None:
+        """Fill the local positions and velocities (owned and ghosts) from the owned arrays of every rank; also
+        the local damping geometry and start positions when given."""
+        t0 = time.perf_counter()
+        self._exchange_into(q_own, self.q_loc)
+        if v_own is not None:
+            self._exchange_into(v_own, self.v_loc)
+        for own, loc in ((geometry, self.g_loc), (q_start, self.q0_loc)):
+            if own is not None:
+                self._exchange_into(own, loc)
         self.timings["exchange_s"] += time.perf_counter() - t0
 
-    def forces(self, q_own: np.ndarray, v_own: np.ndarray, exchange: bool = True) -> np.ndarray:
-        """Total force [N] on the owned particles (n_own, 3) at the global state whose owned parts are given."""
-        if exchange:
-            self.exchange(q_own, v_own)
-        t0 = time.perf_counter()
-        p, f = self.part, self.f_loc
-        f.fill(0.0)
-        for t in self.pair_terms:
-            t.eval_force(self.q_loc, self.v_loc, f)
-        n = p.n_own
-        for t in self.particle_terms:
-            t.eval_force(self.q_loc[:n], self.v_loc[:n], f[:n])
-        self.loc.array[:] = f[:p.n_local_free].ravel()
+    def _reverse_add(self, f_loc: np.ndarray, out: np.ndarray) -> np.ndarray:
+        """``out`` (owned) = the local rows of ``f_loc``, ghost rows added to their owners."""
+        self.loc.array[:] = f_loc[:self.part.n_local_free].ravel()
         self.w.set(0.0)
         self.scatter.scatter(self.loc, self.w, addv=self.PETSc.InsertMode.ADD_VALUES,
                              mode=self.PETSc.ScatterMode.REVERSE)
-        out = self.w.array.reshape(-1, 3).copy()
+        out[...] = self.w.array.reshape(-1, 3)
+        return out
+
+    def forces(self, q_own, v_own, out=None, *, damping_geometry=None):
+        """Total force [N] on the owned particles (n_own, 3) at the global state whose owned parts are given."""
+        self.exchange(q_own, v_own, geometry=damping_geometry)
+        t0 = time.perf_counter()
+        n, f = self.part.n_own, self.f_loc
+        g = None if damping_geometry is None else self.g_loc
+        f.fill(0.0)
+        for t in self.pair_terms:
+            t.eval_force(self.q_loc, self.v_loc, f, damping_geometry=g)
+        for t in self.particle_terms:
+            t.eval_force(self.q_loc[:n], self.v_loc[:n], f[:n], damping_geometry=None if g is None else g[:n])
+        out = np.empty((n, 3)) if out is None else out
+        self._reverse_add(f, out)
         self.timings["force_s"] += time.perf_counter() - t0
         return out
 
+    def forces_discrete(self, q0, q1, qd, out):
+        self.exchange(q1, qd, q_start=q0)
+        n, f = self.part.n_own, self.f_loc
+        f.fill(0.0)
+        for t in self.pair_terms:
+            t.eval_force_discrete(self.q0_loc, self.q_loc, self.v_loc, f)
+        for t in self.particle_terms:
+            t.eval_force_discrete(self.q0_loc[:n], self.q_loc[:n], self.v_loc[:n], f[:n])
+        return self._reverse_add(f, out)
+
+    def potential_energy(self, q) -> float:
+        self.exchange(q)
+        n = self.part.n_own
+        local = sum(float(t.potential_energy(self.q_loc)) for t in self.pair_terms if t.conservative)
+        local += sum(float(t.potential_energy(self.q_loc[:n])) for t in self.particle_terms if t.conservative)
+        return self.sum(local)
+
+    def dissipation(self, geometry, qd) -> float:
+        self.exchange(geometry, qd)
+        n = self.part.n_own
+        local = sum(float(t.dissipation(self.q_loc, self.v_loc)) for t in self.pair_terms if t.dissipative)
+        local += sum(float(t.dissipation(self.q_loc[:n], self.v_loc[:n])) for t in self.particle_terms
+                     if t.dissipative)
+        return self.sum(local)
+
     # -- assembly --------------------------------------------------------------------------------------------------
-    def assemble(self, q_own, v_own, a: float, b: float, mode: str, exchange: bool = True):
-        """``A = M - a dF/dq - b dF/dqd`` at the given state, into :attr:`A` (the PETSc matrix)."""
-        if exchange:
-            self.exchange(q_own, v_own)
+    def assemble(self, q_own, v_own, a: float, b: float, mode: str, *, q_start=None, damping_geometry=None):
+        """``A = M - a dF/dq - b dF/dqd`` at the given state, into :attr:`A` (the PETSc matrix); returns an
+        operator on DOF vectors (``A @ x``) for it."""
+        self.exchange(q_own, v_own, geometry=damping_geometry, q_start=q_start)
         t0 = time.perf_counter()
-        m = self.asm.assemble(self.q_loc, self.v_loc, a, b, mode)
+        m = self.asm.assemble(self.q_loc, self.v_loc, a, b, mode, q_start=None if q_start is None else self.q0_loc,
+                              damping_geometry=None if damping_geometry is None else self.g_loc)
         t1 = time.perf_counter()
         bsr = m.bsr
         A = self.A
@@ -275,13 +378,18 @@ class DistributedSystem:
             self._local_csr = (bsr.indptr.astype(self.PETSc.IntType), bsr.indices.astype(self.PETSc.IntType))
         A.setValuesBlockedLocalCSR(*self._local_csr, bsr.data.reshape(-1), addv=self.PETSc.InsertMode.ADD_VALUES)
         A.assemble()
-        self.symmetric = bool(self.mpi.allreduce(bool(m.symmetric), op=self.MPI.LAND))
+        self.symmetric = self.all(bool(m.symmetric))
         self._positions = q_own
+        self._last_assembly_s = time.perf_counter() - t0
         self.timings["assembly_s"] += t1 - t0
         self.timings["insert_s"] += time.perf_counter() - t1
-        return A
+        return _Operator(self)
 
-    def precision_loss(self) -> float:
+    @property
+    def last_assembly_s(self) -> float:
+        return self._last_assembly_s
+
+    def precision_loss(self, A=None) -> float:
         """Relative precision to which the assembled matrix holds the masses, max over ranks:
         ``u max_k A_kk / m_k`` over the diagonal entries of the free DOFs (ghost contributions included).
 
@@ -317,15 +425,16 @@ class DistributedSystem:
         self.A.setNearNullSpace(ns)
         return ns
 
-    def solve(self, rhs_own: np.ndarray, x0: np.ndarray | None = None, rtol: float | None = None) -> LinearSolveResult:
-        """Solve ``A x = rhs`` (owned parts) to the relative residual ``rtol`` (default :attr:`rtol`); see the
-        module docstring for the defaults, checks and retry."""
+    def solve(self, A, rhs_own: np.ndarray, *, x0: np.ndarray | None = None,
+              rtol: float | None = None) -> LinearSolveResult:
+        """Solve ``A x = rhs`` (``A`` the last assembled matrix; DOF vectors of the owned particles) to the relative
+        residual ``rtol`` (default :attr:`rtol`); see the module docstring for the defaults, checks and retry."""
         rtol = self.rtol if rtol is None else float(rtol)
         b, x = self.b, self.x
         b.array[:] = rhs_own.ravel()
         bn = b.norm()
         if bn == 0.0:
-            return LinearSolveResult(np.zeros_like(rhs_own), True, 0, 0.0, "petsc")
+            return LinearSolveResult(np.zeros(rhs_own.size), True, 0, 0.0, "petsc")
         ns = self._near_null_space()
         first = self.ksp_type or ("cg" if self.symmetric else "gmres")
         attempts = [(first, self.maxiter), ("gmres", 5 * self.maxiter)]
@@ -363,7 +472,7 @@ class DistributedSystem:
         ok = reason > 0 and np.isfinite(rel) and rel <= 1.01 * target
         failure = None if ok else (f"{method}: relative residual {rel:.2e} above rtol {rtol:g} "
                                    f"(PETSc reason {reason}) after the retry")
-        return LinearSolveResult(x.array.reshape(-1, 3).copy(), ok, its, float(rel),
+        return LinearSolveResult(x.array.copy(), ok, its, float(rel),
                                  method + ("" if fallback is None else " (retry)"), setup, solve, failure, fallback)
 
     # -- gathering -------------------------------------------------------------------------------------------------

@@ -24,6 +24,7 @@ from abc import abstractmethod
 import numpy as np
 
 from ..errors import SceneError, SolverError
+from ..forces import PROJECTED_MODES
 from ._base import Integrator, StepStats
 from ._stage import (FORCING_RULES, STAGE_SOLVERS, StageForcing, StageOptions, StageSolver, backtrack, check_count,
                      forcing_term, record_linear_solve, report_stage)
@@ -50,7 +51,8 @@ class ImplicitIntegrator(Integrator):
         How stages are solved (:mod:`springsim.integrators._stage`): ``"minimize"`` (the default where every
         force term is conservative or dissipative and the method's stage is a minimisation) minimises the
         incremental potential with projected Newton and a line search on it, stopping on the gradient;
-        ``"residual"`` is Newton with a line search on the residual; ``"pa2"`` the seed's rule exactly.
+        ``"residual"`` is Newton with a line search on the residual; ``"pa2"`` the seed's rule exactly. When it is
+        not given, a ``jacobian`` that is not a projected mode (``exact``, ``symmetric``) selects ``"residual"``.
     jacobian : {"exact", "symmetric", "spd", "mixed"} or None
         Jacobian mode of Newton's matrix (:data:`springsim.forces.JACOBIAN_MODES`). ``"minimize"`` needs a
         projected Hessian and defaults to ``"mixed"`` (``"spd"`` is the other); ``"pa2"`` defaults to
@@ -124,7 +126,9 @@ class ImplicitIntegrator(Integrator):
         potential = all(t.conservative or t.dissipative for t in self.terms)
         if stage_solver is None:
             stage_solver = self.stage_solvers[0]
-            if stage_solver == "minimize" and not potential:
+            # a minimisation needs forces with a potential and a projected Hessian: a Jacobian mode that is not
+            # one asks for Newton on the residual
+            if stage_solver == "minimize" and (not potential or jacobian not in (None, *PROJECTED_MODES)):
                 stage_solver = "residual"
         elif stage_solver not in STAGE_SOLVERS:
             raise SceneError("stage_solver", f"must be one of {', '.join(STAGE_SOLVERS)}, got {stage_solver!r:.60}")

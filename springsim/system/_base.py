@@ -49,12 +49,18 @@ class System(ABC):
     """
 
     model = None
+    #: Whether the fixed particles are rows of the state arrays (serially) or not (distributed).
+    holds_fixed: bool = True
     terms: list = []
     particle_mass: np.ndarray
     fixed: np.ndarray
     is_root: bool = True
 
     # -- set-up -------------------------------------------------------------------------------------------------
+    def metadata(self) -> dict:
+        """What a trajectory's ``meta`` records of the backend (``backend``, and its own keys)."""
+        return {"backend": "serial"}
+
     @abstractmethod
     def local_state(self, q: np.ndarray, qd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The state arrays of this process from full (N, 3) positions [m] and velocities [m/s] (copies)."""

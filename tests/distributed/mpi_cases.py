@@ -30,6 +30,23 @@ def trajectory(scene, integrator, dt, steps, out, partitioner="contiguous"):
     return 0
 
 
+def adaptive(scene, integrator, out):
+    """Adaptive stepping over the distributed system (the serial controller), to t = 0.2 s."""
+    from springsim import simulate_adaptive
+    from springsim.distributed import make_distributed
+
+    from .scenes import scene as make
+
+    model = make(scene)
+    integ = make_distributed(model, integrator, linear_rtol=1e-10, jacobian="spd", on_nonconvergence="ignore")
+    traj = simulate_adaptive(model, integ, 0.2, frame_dt=0.05, time_rtol=1e-3, time_atol=1e-4, h0=1e-2)
+    if traj is not None:
+        a = traj.adaptive_stats
+        np.savez(out, q=traj.q, accepted=a["accepted"], rejected=a["rejected"])
+    integ.system.destroy()
+    return 0
+
+
 def trajectory_forcing(scene, dt, steps, out):
     """Implicit Euler with Eisenstat-Walker forcing (Newton to 1e-9 m/s), for comparison with a serial run."""
     from springsim.distributed import simulate_distributed
