@@ -87,15 +87,11 @@ class Trapezoidal(ImplicitIntegrator):
     name = "trapezoidal"
     order = 2
 
-    def step(self, state_in, state_out, dt):
-        stats = StepStats(dt)
-        q, v = state_in.particle_q, state_in.particle_qd
-        c = 0.5 * dt
+    def advance(self, q, v, h, stats):
+        c = 0.5 * h
         a = self.acceleration(q, v)
-        q1, v1, _ = self.solve_stage(q + c * v, v + c * a, c, v + dt * a, stats)
-        state_out.particle_q[...] = q1
-        state_out.particle_qd[...] = v1
-        return stats
+        q1, v1, _ = self.solve_stage(q + c * v, v + c * a, c, v + h * a, stats)
+        return q1, v1
 
 
 def cloth(n):

@@ -29,7 +29,7 @@ HEADER = ["n", "method", "solver", "jacobian", "escalate", "escalate_after", "st
 
 def run(model, method, solver, jacobian, escalate, steps, q_ref, newton_maxiter=50, rtol=1e-6, escalate_after=None):
     """One fixed-step run over ``acc.T_END``; the table row (without ``n``)."""
-    kw = dict(solver=solver, solver_options={"rtol": rtol}, on_nonconvergence="ignore",
+    kw = dict(solver=solver, solver_options={"rtol": rtol}, on_nonconvergence="ignore", stage_solver="residual",
               newton_maxiter=newton_maxiter, escalate_jacobian=escalate, escalate_after=escalate_after)
     if jacobian != "default":
         kw["jacobian"] = jacobian

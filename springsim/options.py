@@ -355,12 +355,15 @@ class SolverConfig:
                 opts[m["kwarg"] or f.name] = value
         return opts
 
-    def unused(self) -> list[str]:
+    def unused(self, integrator=None) -> list[str]:
         """Fields that are set but have no effect on this run (the YAML keys): Newton options of integrators
-        without Newton iterations, ``max_step`` without adaptive stepping."""
+        without Newton iterations, the options the built ``integrator``'s stage rule does not use, ``max_step``
+        without adaptive stepping."""
         from .integrators import integrator_class
 
         skip = integrator_class(self.integrator).unused_options
+        if integrator is not None and hasattr(integrator, "ignored_options"):
+            skip = skip | integrator.ignored_options()
         out = [self.yaml_key(f.name) for f in fields(self)
                if getattr(self, f.name) is not None and f.metadata["to"] != "run"
                and (f.metadata["kwarg"] or f.name) in skip]

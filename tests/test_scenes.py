@@ -15,11 +15,11 @@ ALL = sorted(p.name for p in SCENES.glob("*.yaml"))
 # scene -> (steps, particle, final position [m]) with the scene's own solver settings
 PINNED = {
     "spring.yaml": (50, 1, [0.0, 0.0, -0.07761937250717124]),
-    "damped_spring.yaml": (50, 1, [0.05896129264077063, 0.0, -0.10246309034831809]),
+    "damped_spring.yaml": (50, 1, [0.058953438211759024, 0.0, -0.1024655443278245]),
     "three_body.yaml": (100, 1, [0.5402018714323692, 0.8414091023850672, 0.0]),  # circular orbit: ~(cos 1, sin 1)
     "stiff_chain.yaml": (40, 19, [0.8870300447170579, 0.0, 0.8016804680564369]),
     "small_cloth.yaml": (30, 104, [0.02, 0.0500000627500231, -0.004561650000000001]),
-    "cloth_16.yaml": (10, 255, [1.0000012313990563, 0.9655043986370696, -0.14987500044036695]),  # exact Jacobian
+    "cloth_16.yaml": (10, 255, [0.9999996291898581, 0.9607606027073038, -0.1498750005678588]),  # mixed Jacobian
 }
 
 

@@ -236,6 +236,13 @@ class SystemAssembler:
         self.last_time_s = time.perf_counter() - t0
         return m
 
+    def linearize_at(self, q: np.ndarray) -> None:
+        """Make the positions ``q`` (N, 3) the previous linearisation of every term's ``mixed`` Jacobian
+        (:meth:`springsim.forces.ForceTerm.linearize_at`), so that the next ``mixed`` assembly continues from
+        there whatever was assembled before."""
+        for term in self.terms:
+            term.linearize_at(q, self._work[id(term)])
+
     # -- helpers to move between full (N, 3) arrays and free DOF vectors -------------------
     def gather(self, x: np.ndarray) -> np.ndarray:
         """Free DOF vector (3F,) from a full (N, 3) array."""

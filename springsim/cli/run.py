@@ -105,15 +105,15 @@ def execute(scene, cfg, *, record: bool = True, frame_every: int = 1, progress=T
     from ..progress import as_progress, logger, phase
 
     steps = cfg.run_steps()
-    unused = cfg.unused()
-    if unused and not quiet:
-        print(f"springsim: warning: {cfg.integrator} does not use {', '.join(unused)}"
-              f"{' (max_step needs time_rtol or time_atol)' if 'max_step' in unused else ''}; ignored",
-              file=sys.stderr)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SpringsimWarning)  # reported in the CLI's own lines
         with phase(f"setting up {cfg.integrator}"):
             integrator = cfg.make_integrator(scene.model)
+        unused = cfg.unused(integrator)
+        if unused and not quiet:
+            print(f"springsim: warning: {cfg.integrator} does not use {', '.join(unused)}"
+                  f"{' (max_step needs time_rtol or time_atol)' if 'max_step' in unused else ''}; ignored",
+                  file=sys.stderr)
         progress = as_progress(progress)
         logger.debug("running %s", f"{cfg.integrator} to t = {steps * cfg.dt:g} s (adaptive, frames every "
                                    f"{cfg.dt * frame_every:g} s)" if cfg.adaptive else

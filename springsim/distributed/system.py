@@ -385,6 +385,10 @@ class DistributedSystem(System):
         self.timings["insert_s"] += time.perf_counter() - t1
         return _Operator(self)
 
+    def linearize_at(self, q_own):
+        self.exchange(q_own)
+        self.asm.linearize_at(self.q_loc)
+
     @property
     def last_assembly_s(self) -> float:
         return self._last_assembly_s

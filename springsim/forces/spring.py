@@ -223,6 +223,10 @@ class ForceSpring(ForceTerm):
             return Blocks(self.layout_q, K), Blocks(self.layout_qd, -self._kd_damped[:, None, None] * outer(n0, n0))
         return Blocks(self.layout_q, K), self._damping_jacobians(K, l, n, nn, near, qd, mode)
 
+    def linearize_at(self, q, work):
+        d, l, n, _ = pair_geometry(q, self.pairs, self.eps)
+        work["mixed_from"] = (d, l, n)
+
     def _continued_coef(self, coef, d, l, n, near, work):
         """The ``mixed`` mode's transverse coefficient ``s / (k l)`` (module docstring), recording this geometry."""
         prev = work.get("mixed_from")

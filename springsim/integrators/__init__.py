@@ -45,13 +45,16 @@ def integrator_class(name: str) -> type[Integrator]:
 def make_integrator(name: str, model: Model, **options) -> Integrator:
     """Build the registered integrator ``name`` for ``model`` with keyword ``options``.
 
-    Every integrator takes ``force_kernels`` (``"auto"``, ``"numba"``, ``"numpy"``: the compiled spring force
-    pass of the ``accel`` extra or the pure path, see :func:`springsim.forces.make_force_terms`). Options of
-    implicit integrators (see :class:`ImplicitIntegrator`): ``solver``, ``jacobian``,
-    ``newton_tol``, ``newton_maxiter``, ``residual_rtol``, ``on_nonconvergence``, ``solver_options``,
-    ``line_search``, ``min_step``, ``escalate_jacobian``, ``escalate_after``. Options the chosen
-    integrator does not use (Newton options for explicit or linearized methods) are ignored with an
-    :class:`~springsim.errors.UnusedOptionWarning` naming them, never silently.
+    Every integrator takes ``system`` (the backend, :mod:`springsim.system`; default serial) and
+    ``force_kernels`` (``"auto"``, ``"numba"``, ``"numpy"``: the compiled spring force pass of the ``accel`` extra
+    or the pure path, see :func:`springsim.forces.make_force_terms`). Options of implicit integrators (see
+    :class:`ImplicitIntegrator`): ``solver``, ``solver_options``, ``stage_solver``, ``jacobian``,
+    ``force_rtol``, ``force_atol``, ``newton_tol``, ``newton_maxiter``, ``residual_rtol``,
+    ``on_nonconvergence``, ``line_search``, ``min_step``, ``escalate_jacobian``, ``escalate_after``,
+    ``forcing``, ``forcing_max``, ``retake_halvings``, ``filter_estimates``. Options the chosen integrator
+    or its stage rule does not use (Newton options for explicit or linearized methods, the residual rule's
+    tolerances with minimize stages, ...) are ignored with an :class:`~springsim.errors.UnusedOptionWarning`
+    naming them, never silently.
 
     Raises
     ------
@@ -60,7 +63,11 @@ def make_integrator(name: str, model: Model, **options) -> Integrator:
     """
     cls = integrator_class(name)
     unused = sorted(k for k, v in options.items() if k in cls.unused_options and v is not None)
+    integ = cls(model, **{k: v for k, v in options.items() if k not in cls.unused_options})
+    ignored = getattr(integ, "ignored_options", frozenset)()
+    unused += sorted(k for k, v in options.items() if k in ignored and v is not None)
     if unused:
-        warnings.warn(f"{name} does not use the option(s) {', '.join(unused)}; ignored", UnusedOptionWarning,
+        rule = f" with {integ.stage_solver} stages" if ignored & set(unused) else ""
+        warnings.warn(f"{name}{rule} does not use the option(s) {', '.join(unused)}; ignored", UnusedOptionWarning,
                       stacklevel=2)
-    return cls(model, **{k: v for k, v in options.items() if k not in cls.unused_options})
+    return integ

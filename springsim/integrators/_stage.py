@@ -33,13 +33,15 @@ Three rules decide how the iteration is globalised and when it stops (``stage_so
     that term from the previous iterate's linearisation, :mod:`springsim.forces.spring`), so ``A >= M`` is
     positive definite by construction, ``dv`` is a descent direction and a backtracking (Armijo) line search
     on ``E`` itself always finds a decrease. A
-    stage stops when the gradient is small in newtons::
+    stage stops when the gradient is small in newtons against the forces it balances::
 
-        |grad E|_2 <= force_atol + force_rtol f_ref,    f_ref = |M (v_0 - v_hat)/c|_2 + |F_0|_2 + |M g|_2
+        |grad E|_2 <= force_atol + force_rtol f_ref,    f_ref = |M (v - v_hat)|_2 / c + |F|_2 + |M g|_2
 
-    (2-norms over free DOFs, at the starting iterate ``v_0``; ``|M g|`` the free particles' weight), or, when
-    round-off leaves no decrease to find, when the gradient is within ``1e3`` times that and the line search
-    reports stagnation. Damped or not, ``E`` decreases at every iteration.
+    (2-norms over free DOFs at the current iterate: inertia, applied force and, as a floor, the free particles'
+    weight ``|M g|``), or, when round-off leaves no decrease to find, when the gradient is within ``1e3`` times
+    that and the line search reports stagnation. Measured against the iterate's own forces, the rule does not
+    loosen when the starting iterate is far off (a stiff spring stretched by the predictor exerts forces many
+    orders above the motion's). Damped or not, ``E`` decreases at every iteration.
 
 ``"residual"``
     Newton on the residual with a backtracking line search on ``|R|`` (Armijo on ``1/2 |R|^2``), stopping
@@ -384,7 +386,8 @@ class StageSolver:
         return self._weight
 
     def _potential(self, q, v, v_hat, c, geometry, f):
-        """``(E, grad E, |grad E|, f_scale)`` at ``v`` (module docstring); ``f`` receives the stage force."""
+        """``(E, grad E, |grad E|, kinetic part of E, force scale)`` at ``v`` (module docstring); ``f`` receives the
+        stage force."""
         sysm = self.system
         t0 = time.perf_counter()
         sysm.forces(q, v, f, damping_geometry=geometry)
@@ -395,8 +398,9 @@ class StageSolver:
         kinetic = 0.5 * sysm.dot(inertia, dv)
         energy = kinetic + sysm.potential_energy(q) + c * sysm.dissipation(geometry, v)
         gnorm = sysm.norm(grad)
+        scale = sysm.norm(inertia) / c + sysm.norm(f) + self._weight_norm()
         self._force_s += time.perf_counter() - t0
-        return energy, grad, gnorm, kinetic
+        return energy, grad, gnorm, kinetic, scale
 
     def _minimize(self, q_hat, v_hat, c, v, stats, maxiter):
         """Projected Newton with Armijo backtracking on the incremental potential (module docstring)."""
@@ -405,12 +409,11 @@ class StageSolver:
         geometry = q_hat + c * v_hat  # the inertial predictor: the frozen damping geometry
         f = np.empty_like(v)
         q = q_hat + c * v
-        E, grad, gnorm, kinetic = self._potential(q, v, v_hat, c, geometry, f)
-        f_ref = sysm.norm(self._mass * (v - v_hat)) / c + sysm.norm(f) + self._weight_norm()
-        tol = o.force_atol + o.force_rtol * f_ref
+        E, grad, gnorm, kinetic, scale = self._potential(q, v, v_hat, c, geometry, f)
+        tol = o.force_atol + o.force_rtol * scale
         forcing = StageForcing(o.forcing, eta_max=o.forcing_max, floor=sysm.linear_rtol)
         converged, stagnated, step, alpha = gnorm <= tol, False, 0.0, 1.0
-        it = 0
+        it = flat = 0
         while not converged and it < maxiter and np.isfinite(gnorm):
             A = self._assemble(q, v, c, o.jacobian, stats, geometry=geometry)
             R = sysm.gather(grad) * (-c)
@@ -426,33 +429,44 @@ class StageSolver:
             step = sysm.norm(dv)
             # Armijo on E with an allowance for the round-off of its evaluation
             noise = 64.0 * np.finfo(np.float64).eps * (abs(E) + abs(kinetic))
+            # where Newton's decrement is below E's round-off (a large constant in V, such as a softened
+            # gravitational core's), E cannot judge the step: its gradient norm does (Armijo on 1/2 |grad E|^2)
+            by_gradient = -slope <= noise
             alpha = 1.0
             while True:
                 v_try, q_try = self._step_to(v, dv, alpha, q_hat, c)
-                E_try, g_try, gn_try, k_try = self._potential(q_try, v_try, v_hat, c, geometry, f)
-                if E_try <= E + _ARMIJO * alpha * slope + noise:
+                trial = self._potential(q_try, v_try, v_hat, c, geometry, f)
+                if (trial[2] <= (1.0 - _ARMIJO * alpha) * gnorm if by_gradient
+                        else trial[0] <= E + _ARMIJO * alpha * slope + noise):
                     break
                 if alpha <= o.min_step or not np.isfinite(E):
                     stagnated = True
                     break
                 alpha *= 0.5
             stats.extra["min_line_search_step"] = min(alpha, stats.extra.get("min_line_search_step", 1.0))
-            if stagnated and not (E_try <= E + noise):
+            if stagnated and not (trial[2] <= gnorm if by_gradient else trial[0] <= E + noise):
                 # no decrease to find at the smallest step: round-off (or a wrong direction); keep the iterate
                 break
-            v, q, E, grad, gnorm, kinetic = v_try, q_try, E_try, g_try, gn_try, k_try
+            # a step accepted only within E's round-off: twice in a row is stagnation, whatever the gradient says
+            flat = flat + 1 if not by_gradient and trial[0] > E + _ARMIJO * alpha * slope else 0
+            v, q = v_try, q_try
+            E, grad, gnorm, kinetic, scale = trial
+            tol = o.force_atol + o.force_rtol * scale
             stagnated = False
             if self.trace is not None:
                 self.trace.append((it, alpha, gnorm, tol, E))
             if gnorm <= tol and forcing.certified(res.residual):
                 converged = True
+            elif flat >= 2:
+                stagnated = True
+                break
         if not converged and stagnated and gnorm <= 1e3 * tol:
             converged = True  # round-off leaves no decrease: the gradient is as small as it can be made
             stats.extra["roundoff_stops"] = stats.extra.get("roundoff_stops", 0) + 1
         stats.force_s += self._force_s
         stats.newton_step_norm = step
         stats.residual_norm = c * gnorm  # |R| = c |grad E| [N s]
-        stats.residual_ratio = gnorm / f_ref if f_ref > 0 else 0.0
+        stats.residual_ratio = gnorm / scale if scale > 0 else 0.0
         stats.extra["gradient_norm"] = gnorm
         stats.extra["gradient_tol"] = tol
         why = (f"the stage did not converge in {maxiter} Newton iterations: |grad E| {gnorm:.2e} N, tolerance "

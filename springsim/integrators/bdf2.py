@@ -137,6 +137,14 @@ class IntegratorBDF2(ImplicitIntegrator):
             k = c / (c + h)
             self.error_estimate = (k * (q1 - _hermite_predict(q, v, q_prev, h_prev, h)),
                                    k * (v1 - _hermite_predict(v, a_n, v_prev, h_prev, h)))
+            gain = self.gained_energy(q, v, q1, v1) if ok else None
+            if gain is not None:  # restart the history from an implicit Euler step
+                hist = None
+                a_n = self.acceleration(q, v).copy()
+                q1, v1, _, self.error_estimate = self.retake_implicit_euler(
+                    q, v, h, a_n, stats, f"bdf2 step created {gain:.3g} J")
+                a1 = (v1 - v) / h
+                c_est = h
         else:
             a_n = self.acceleration(q, v).copy()
             q1, v1, _, self.error_estimate = self.implicit_euler_stage(q, v, h, a_n, stats)

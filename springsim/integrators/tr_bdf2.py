@@ -82,7 +82,12 @@ class IntegratorTRBDF2(ImplicitIntegrator):
         v_hat2 = s * v_g - r * v
         q1, v1, ok2 = self.solve_stage(s * q_g - r * q, v_hat2, c2, v_g, stats)
         a1 = (v1 - v_hat2) / c2
-        if ok2:
+        gain = self.gained_energy(q, v, q1, v1) if ok2 else None
+        if gain is not None:
+            q1, v1, _, self.error_estimate = self.retake_implicit_euler(
+                q, v, h, a_n, stats, f"tr_bdf2 step created {gain:.3g} J")
+            self.error_estimate = self.finish_estimate(q1, v1, h, self.error_estimate, stats)
+        elif ok2:
             q1[self.fixed] = q[self.fixed]  # a1 q - a2 q_prev rounds: keep fixed particles bit-exact
             a1[self.fixed] = 0.0
             a_g[self.fixed] = 0.0

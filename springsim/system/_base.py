@@ -121,6 +121,11 @@ class System(ABC):
         ``damping_geometry`` evaluates ``dF/dqd`` with the dissipative terms' geometry there.
         """
 
+    @abstractmethod
+    def linearize_at(self, q: np.ndarray) -> None:
+        """Make ``q`` the previous linearisation of the ``mixed`` Jacobian mode
+        (:meth:`springsim.assembly.SystemAssembler.linearize_at`): a step's stages then depend only on its input."""
+
     @property
     @abstractmethod
     def last_assembly_s(self) -> float:

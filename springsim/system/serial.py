@@ -101,6 +101,9 @@ class SerialSystem(System):
     def assemble(self, q, qd, a, b, mode, *, q_start=None, damping_geometry=None):
         return self.assembler.assemble(q, qd, a, b, mode, q_start=q_start, damping_geometry=damping_geometry)
 
+    def linearize_at(self, q):
+        self.assembler.linearize_at(q)
+
     @property
     def last_assembly_s(self) -> float:
         return self.assembler.last_time_s

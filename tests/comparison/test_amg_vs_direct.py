@@ -66,7 +66,8 @@ def test_hierarchy_reuse_and_warm_start_keep_the_newton_trajectory(method, optio
     runs = {}
     for on in (True, False):
         opts = {"rtol": 1e-10, "reuse": False, "warm_start": False, option: on}
-        integ = make_integrator(method, model, solver="amg-cg", jacobian="spd", newton_tol=1e-8, newton_maxiter=50,
+        integ = make_integrator(method, model, solver="amg-cg", jacobian="spd", stage_solver="residual",
+                                newton_tol=1e-8, newton_maxiter=50,
                                 solver_options=opts)
         tr = simulate(model, integ, BENCHMARK_DT, 15)
         assert all(st.ok and st.newton_converged for st in tr.stats)

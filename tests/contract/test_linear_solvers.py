@@ -195,15 +195,19 @@ def test_amg_reuse_cooldown_backs_off_and_resets():
 
 
 def test_auto_asks_for_spd_only_where_it_uses_cg():
-    """Integrators default to ``exact`` with ``auto`` on systems its direct solver takes, ``spd`` above."""
+    """Residual-rule stages default to ``exact`` with ``auto`` on systems its direct solver takes, ``spd`` above;
+    minimize stages (the default) always use the projected ``mixed`` Hessian, whatever the solver."""
     from springsim.integrators import make_integrator
 
     model = benchmark_cloth(8)  # 168 free DOFs
-    assert make_integrator("implicit_euler", model, solver="auto").jacobian == "exact"
-    small = make_integrator("implicit_euler", model, solver="auto", solver_options={"direct_max_dofs": 100})
+    res = dict(stage_solver="residual")
+    assert make_integrator("implicit_euler", model, solver="auto", **res).jacobian == "exact"
+    small = make_integrator("implicit_euler", model, solver="auto", solver_options={"direct_max_dofs": 100}, **res)
     assert small.jacobian == "spd"
-    assert make_integrator("implicit_euler", model, solver="amg-cg").jacobian == "spd"
-    assert make_integrator("implicit_euler", model, solver="direct").jacobian == "exact"
+    assert make_integrator("implicit_euler", model, solver="amg-cg", **res).jacobian == "spd"
+    assert make_integrator("implicit_euler", model, solver="direct", **res).jacobian == "exact"
+    for solver in ("auto", "amg-cg", "direct"):
+        assert make_integrator("implicit_euler", model, solver=solver).jacobian == "mixed"
 
 
 def test_direct_reports_the_fill_of_its_factors():

@@ -1,5 +1,6 @@
 """The ``springsim`` command line: run, overrides, --out, exit codes and one-line errors."""
 
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -36,7 +37,7 @@ def test_run_prints_summary(capsys, scene_file):
     code, out, err = _run(capsys, "run", scene_file)
     assert code == 0 and err == ""
     for key in ("scene:", "particles:", "2 (1 free, 1 fixed)", "springs:", "gravitational pairs:", "dofs:",
-                "implicit_euler (linear solver auto -> direct: 3 DOFs <= 4000, jacobian exact)", "steps:", "5 x dt = 0.01 s",
+                "implicit_euler (linear solver auto -> direct: 3 DOFs <= 4000, minimize stages, jacobian mixed)", "steps:", "5 x dt = 0.01 s",
                 "simulated time:", "wall time:", "(CPU ", "time per step:", "assembly per step:", "other per step:",
                 "Newton iterations:", "linear iterations:", "failed steps:", "solver fallbacks:",
                 "max linear residual:",
@@ -73,7 +74,7 @@ def test_solver_options_override(capsys, scene_file):
                         "--newton-tol", "1e-9", "--newton-maxiter", 3, "--rtol", "1e-8", "--quiet")
     assert code == 0 and out == ""
     code, out, _ = _run(capsys, "run", scene_file, "--solver", "dense", "--jacobian", "symmetric", "--steps", 1)
-    assert "linear solver dense, jacobian symmetric" in out
+    assert "linear solver dense, residual stages, jacobian symmetric" in out
 
 
 def test_duration_and_default_steps(capsys, tmp_path):
@@ -176,13 +177,22 @@ def test_python_dash_m_entry_point(tmp_path):
     assert err.returncode == 2 and err.stderr.count("\n") == 1 and "Traceback" not in err.stderr
 
 
-def test_newton_nonconvergence_is_one_warning_line(capsys, scene_file):
-    """Newton non-convergence gives one summary warning line on stderr instead of a warning per step."""
-    code, out, err = _run(capsys, "run", scene_file, "--newton-maxiter", 1, "--newton-tol", "1e-14")
-    assert code == 0 and "failed steps:          5 (Newton 5, linear solves 0, ill-conditioned 0)" in out
-    lines = err.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("springsim: warning: 5 of 5 step(s) did not meet their criteria "
-                                                   "(first: Newton did not converge in 1 iterations")
+def test_newton_nonconvergence_is_one_line_and_the_exit_status(capsys, scene_file):
+    """Steps that fail after their substep retakes give one summary line on stderr (not a warning per step): an
+    error and exit status 1, or with ``--keep-going`` a warning and 0; the frames are kept either way."""
+    argv = ["run", scene_file, "--stage-solver", "residual", "--newton-maxiter", 1, "--newton-tol", "1e-14"]
+    for extra, status, kind in (([], 1, "error"), (["--keep-going"], 0, "warning")):
+        code, out, err = _run(capsys, *argv, *extra)
+        assert code == status and re.search(r"failed steps:\s+5 \(Newton 5, linear solves 0, ill-conditioned 0\)", out)
+        lines = err.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith(f"springsim: {kind}: 5 of 5 step(s) did not meet their "
+                                                       "criteria (first: Newton did not converge in 1 iterations")
+
+
+def test_options_the_stage_rule_does_not_use_are_reported(capsys, scene_file):
+    """``--newton-tol`` with minimize stages (the default) has no effect: one warning line names it."""
+    code, _, err = _run(capsys, "run", scene_file, "--newton-tol", "1e-9", "--quiet")
+    assert code == 0 and err.strip() == "springsim: warning: implicit_euler does not use newton_tol; ignored"
 
 
 def test_adaptive_run_and_max_step(capsys, scene_file):

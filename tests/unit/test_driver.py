@@ -214,7 +214,7 @@ def test_saved_metadata_traces_the_run(tmp_path):
         meta = json.loads(str(z["meta"]))
     assert meta == dict(tr.meta, format="springsim-trajectory", format_version=1)
     assert meta["springsim_version"] == springsim.__version__ and meta["model_fingerprint"] == m.fingerprint()
-    assert (meta["integrator"], meta["linear_solver"], meta["jacobian"]) == ("implicit_euler", "direct", "exact")
+    assert (meta["integrator"], meta["linear_solver"], meta["jacobian"]) == ("implicit_euler", "direct", "mixed")
     assert (meta["dt"], meta["steps"], meta["frame_every"]) == (0.01, 4, 2)
     assert Trajectory.load(out).meta == meta
     ad = springsim.simulate_adaptive(m, "tr_bdf2", 0.05, time_rtol=1e-4, time_atol=1e-5)

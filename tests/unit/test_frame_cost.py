@@ -214,7 +214,7 @@ def test_parse_candidate(fc):
     assert c.label == "tr_bdf2 h=1/120 auto forcing=eisenstat-walker forcing_max=0.3 newton_maxiter=20"
     model = fc.cloth(4)
     run = fc.make_run(model, c, {"newton_maxiter": 50})
-    assert run.integ.forcing == "eisenstat-walker" and run.integ.newton_maxiter == 20  # the candidate's own win
+    assert run.integ.options.forcing == "eisenstat-walker" and run.integ.newton_maxiter == 20  # the candidate's own win
     e = fc.parse_candidate("verlet:1200:none")
     assert not e.implicit and e.steps_per_frame == 20 and e.label == "verlet h=1/1200"
 

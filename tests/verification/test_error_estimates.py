@@ -55,7 +55,7 @@ def _dense_blocks(integ, q, v):
     """``dF/dq`` and ``dF/dqd`` over free DOFs, dense, from the assembler (its Jacobians are checked against
     finite differences in tests/contract)."""
     asm = integ.assembler
-    m = np.repeat(integ.model.particle_mass[integ.free], 3)
+    m = np.repeat(integ.model.particle_mass[integ.model.free_particles], 3)
     Jq = np.diag(m) - asm.assemble(q, v, 1.0, 0.0, integ.jacobian).toarray()
     Jv = np.diag(m) - asm.assemble(q, v, 0.0, 1.0, integ.jacobian).toarray()
     return m, Jq, Jv
