@@ -96,8 +96,10 @@ class StepStats:
 
     @property
     def ok(self) -> bool:
-        """Newton converged, every linear solve met its criterion, and the matrices were well-conditioned."""
-        return self.newton_converged and self.linear_failures == 0 and not self.ill_conditioned
+        """Newton converged, every linear solve met its criterion, the matrices were well-conditioned, and
+        nothing else failed the step (:meth:`fail`: e.g. a step that created energy)."""
+        return (self.newton_converged and self.linear_failures == 0 and not self.ill_conditioned
+                and not self.failures)
 
     def fail(self, reason: str) -> None:
         """Record why the step is not ok (kept once per distinct reason)."""

@@ -443,6 +443,10 @@ class StageSolver:
                     stagnated = True
                     break
                 alpha *= 0.5
+            if alpha == 1.0 and not by_gradient and trial[0] - E < 0.9 * slope:
+                # E fell by more than its quadratic model allows (half the slope): negative curvature the
+                # projection removed (a buckling cloth); follow it with longer steps while E keeps falling
+                v_try, q_try, trial, alpha = self._expand(v, dv, q_hat, v_hat, c, geometry, f, trial, v_try, q_try)
             stats.extra["min_line_search_step"] = min(alpha, stats.extra.get("min_line_search_step", 1.0))
             if stagnated and not (trial[2] <= gnorm if by_gradient else trial[0] <= E + noise):
                 # no decrease to find at the smallest step: round-off (or a wrong direction); keep the iterate
@@ -472,6 +476,20 @@ class StageSolver:
         why = (f"the stage did not converge in {maxiter} Newton iterations: |grad E| {gnorm:.2e} N, tolerance "
                f"{tol:.2e} N ({'line search stagnated' if stagnated else 'iteration limit'})")
         return q, v, converged and bool(np.isfinite(gnorm)), why
+
+    def _expand(self, v, dv, q_hat, v_hat, c, geometry, f, trial, v_try, q_try, most: int = 4):
+        """Doubling the accepted full step up to ``2**most`` times while ``E`` keeps falling: the best trial."""
+        alpha = 1.0
+        for _ in range(most):
+            v2, q2 = self._step_to(v, dv, 2.0 * alpha, q_hat, c)
+            f2 = np.empty_like(f)
+            t2 = self._potential(q2, v2, v_hat, c, geometry, f2)
+            if not t2[0] < trial[0]:
+                break
+            alpha, v_try, q_try, trial = 2.0 * alpha, v2, q2, t2
+            f[...] = f2
+        self.expansions = getattr(self, "expansions", 0) + (alpha > 1.0)
+        return v_try, q_try, trial, alpha
 
     # -- Newton on the residual (residual and pa2 rules, and every plain iteration) ---------------------------------
     def _newton_escalating(self, q_hat, v_hat, c, v, stats, maxiter, converge, final_residual, forces, matrix):

@@ -29,7 +29,9 @@ __all__ = ["IntegratorLinearizedImplicit"]
 class IntegratorLinearizedImplicit(ImplicitIntegrator):
     """One linear solve per step (PA2 eq. 3). Options as :class:`ImplicitIntegrator`;
     ``newton_tol``, ``newton_maxiter``, ``residual_rtol`` and ``line_search`` are accepted but
-    unused: the one Newton step is never checked, repeated or shortened."""
+    unused: the one Newton step is never repeated or shortened. A step that creates more than
+    :data:`~springsim.integrators._implicit.ENERGY_GAIN` of the state's energy scale (where every force has
+    a potential or dissipates) is not ``ok`` and is retaken in substeps like a failed stage."""
 
     name = "linearized_implicit"
     # one plain Newton iteration: no stopping rule, line search or escalation
@@ -44,5 +46,8 @@ class IntegratorLinearizedImplicit(ImplicitIntegrator):
         return "try a smaller time step or implicit_euler"
 
     def advance(self, q, v, h, stats):
-        q1, v1, _ = self.solve_stage(q, v, h, v, stats, maxiter=1, converge=False, final_residual=False)
+        q1, v1, ok = self.solve_stage(q, v, h, v, stats, maxiter=1, converge=False, final_residual=False)
+        gain = self.gained_energy(q, v, q1, v1) if ok else None
+        if gain is not None:  # one unchecked linear step created energy: retaken in substeps
+            stats.fail(f"the linear step created {gain:.3g} J")
         return q1, v1
