@@ -27,18 +27,15 @@ guarantees:
 from __future__ import annotations
 
 import json
-import os
-import stat
-import tempfile
 import time
 import warnings
-import zipfile
-import zlib
 from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
 
+from ._npz import read_trajectory_npz
+from ._atomic import _new_file_mode, _target, check_output_path, save_npz_atomic  # noqa: F401 (re-exported)
 from .energy import EnergyBound
 from .errors import (ConvergenceWarning, FallbackWarning, SimulationError, SimulationInterrupted, SpringsimError)
 from .integrators import Integrator, StepStats
@@ -53,16 +50,6 @@ __all__ = ["Trajectory", "TRAJECTORY_FORMAT", "TRAJECTORY_FORMAT_VERSION", "run_
 #: ``meta["format"]`` of a saved trajectory, and the layout version this springsim writes.
 TRAJECTORY_FORMAT = "springsim-trajectory"
 TRAJECTORY_FORMAT_VERSION = 1
-
-
-def _read_meta(a) -> dict:
-    """The JSON object in the 0-d ``meta`` array of a trajectory file."""
-    if a.dtype.kind != "U" or a.ndim != 0:
-        raise ValueError(f"meta must be a 0-d unicode array, got {a.dtype} {a.shape}")
-    meta = json.loads(str(a))
-    if not isinstance(meta, dict):
-        raise ValueError("meta must hold a JSON object")
-    return meta
 
 
 @dataclass
@@ -112,9 +99,10 @@ class Trajectory:
         Layout (NumPy ``.npz``, readable with ``np.load(path)`` and no pickling): ``t`` (F,)
         float64 [s], ``q`` and ``qd`` (F, N, 3) float64 [m], [m/s], frame 0 the initial state;
         ``meta`` a 0-d unicode array holding :attr:`meta` as a JSON object, with
-        ``"format": "springsim-trajectory"`` and ``"format_version": 1``.
+        ``"format": "springsim-trajectory"`` and ``"format_version": 1`` (these two keys are always the
+        format's own: a ``meta`` entry of the same name does not replace them).
         """
-        meta = {"format": TRAJECTORY_FORMAT, "format_version": TRAJECTORY_FORMAT_VERSION, **self.meta}
+        meta = {**self.meta, "format": TRAJECTORY_FORMAT, "format_version": TRAJECTORY_FORMAT_VERSION}
         save_npz_atomic(path, t=self.t, q=self.q, qd=self.qd, meta=np.array(json.dumps(meta, sort_keys=True)))
 
     @classmethod
@@ -125,30 +113,12 @@ class Trajectory:
         ------
         SpringsimError
             One line naming the file when it is missing, not a springsim ``.npz``, truncated
-            or corrupt, or its arrays do not fit together.
+            or corrupt, its arrays do not fit together or would not fit in memory, or its ``meta``
+            is not a JSON object of this format. The array headers are checked before any data
+            is read (:mod:`springsim._npz`), so this takes bounded time and memory.
         """
-        path = os.fspath(path)
-        if not os.path.exists(path):
-            raise SpringsimError(f"{path}: no such file")
-        if not os.path.isfile(path):
-            raise SpringsimError(f"{path}: not a regular file")
-        try:
-            with np.load(path, allow_pickle=False) as d:
-                t, q = np.asarray(d["t"], dtype=np.float64), np.asarray(d["q"], dtype=np.float64)
-                qd = np.asarray(d["qd"], dtype=np.float64) if "qd" in d.files else np.zeros_like(q)
-                meta = _read_meta(d["meta"]) if "meta" in d.files else {}
-        except (KeyError, ValueError, TypeError, OSError, EOFError, zipfile.BadZipFile, zlib.error) as e:  # JSON too
-            msg = " ".join(str(e).split()) or type(e).__name__
-            raise SpringsimError(f"{path}: not a readable springsim trajectory (.npz with t, q, qd): {msg}") \
-                from None
-        if meta.get("format", TRAJECTORY_FORMAT) != TRAJECTORY_FORMAT or \
-                meta.get("format_version", 1) > TRAJECTORY_FORMAT_VERSION:
-            raise SpringsimError(f"{path}: trajectory format {meta.get('format')!r} version "
-                                 f"{meta.get('format_version')!r}; this springsim reads "
-                                 f"{TRAJECTORY_FORMAT!r} up to version {TRAJECTORY_FORMAT_VERSION}")
-        if q.ndim != 3 or q.shape[2] != 3 or t.ndim != 1 or t.shape[0] != q.shape[0] or qd.shape != q.shape:
-            raise SpringsimError(f"{path}: needs t (F,), q and qd (F, N, 3); got t {t.shape}, q {q.shape}, "
-                                 f"qd {qd.shape}")
+        t, q, qd, meta = read_trajectory_npz(path, format_name=TRAJECTORY_FORMAT,
+                                             format_version=TRAJECTORY_FORMAT_VERSION)
         return cls(t, q, qd, meta=meta)
 
     def summary(self) -> dict:
@@ -175,97 +145,6 @@ class Trajectory:
             "max_precision_loss": max((x.precision_loss for x in s), default=0.0),
             "fallbacks": sum(len(x.fallbacks) for x in s),
         }
-
-
-# -- output files ------------------------------------------------------------------------------
-def _target(path) -> str:
-    """The file a write to ``path`` replaces (symbolic links followed), checked to be a regular file or absent."""
-    path = os.fspath(path)
-    target = os.path.realpath(path)
-    if os.path.exists(target):
-        mode = os.stat(target).st_mode
-        if stat.S_ISDIR(mode):
-            raise SpringsimError(f"{path}: is a directory; give a file name")
-        if not stat.S_ISREG(mode):
-            raise SpringsimError(f"{path}: not a regular file (a device, FIFO or socket); give a file name")
-    d = os.path.dirname(target)
-    if not os.path.isdir(d):
-        raise SpringsimError(f"{path}: directory {d} does not exist")
-    return target
-
-
-def check_output_path(path) -> str:
-    """Check before a run that ``path`` can take an atomic write; return the file to write.
-
-    A symbolic link is followed (its target is replaced, the link stays). The target must be
-    a regular file or not exist, and its directory must exist and accept a new file (probed
-    by creating and removing a temporary file).
-
-    Raises
-    ------
-    SpringsimError
-        One line naming the path and the problem.
-    """
-    target = _target(path)
-    d = os.path.dirname(target)
-    try:
-        fd, probe = tempfile.mkstemp(prefix=".springsim-probe-", dir=d)
-    except OSError as e:
-        raise SpringsimError(f"{os.fspath(path)}: cannot write in {d}: {e.strerror or e}") from None
-    os.close(fd)
-    os.unlink(probe)
-    return target
-
-
-def _new_file_mode(existing: str) -> int:
-    """Mode for a file replacing ``existing``: its mode if it exists, else 0o666 less the umask."""
-    try:
-        return stat.S_IMODE(os.stat(existing).st_mode)
-    except OSError:
-        umask = os.umask(0)
-        os.umask(umask)
-        return 0o666 & ~umask
-
-
-def save_npz_atomic(path, **arrays) -> None:
-    """Write ``arrays`` to the ``.npz`` file ``path`` atomically.
-
-    ``np.savez`` writes to a temporary file in the target's directory, which is flushed,
-    fsync'ed, given the mode of the file it replaces (or ``0o666`` less the umask for a new
-    one) and renamed over the target (``os.replace``, atomic on POSIX and Windows). A symbolic
-    link is followed: its target is replaced and the link kept. On any failure (including
-    KeyboardInterrupt) the temporary file is removed and the target is left as it was.
-
-    Parameters
-    ----------
-    path : str or PathLike
-        Target file, used exactly as given (no ``.npz`` is appended); it must be a regular
-        file or not exist (:func:`check_output_path`).
-    **arrays : ndarray
-        Named arrays, as for ``np.savez``.
-
-    Raises
-    ------
-    SpringsimError
-        When the target is not a regular file or its directory is missing.
-    OSError
-        When writing fails (full disk, permissions); the target is unchanged.
-    """
-    target = _target(path)
-    d = os.path.dirname(target)
-    mode = _new_file_mode(target)
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".npz", dir=d)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            np.savez(fh, **arrays)
-            fh.flush()
-            os.fchmod(fh.fileno(), mode)
-            os.fsync(fh.fileno())
-        os.replace(tmp, target)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 # -- arguments at the boundary -------------------------------------------------------------------

@@ -22,20 +22,20 @@ data where the format holds it. Formats (:data:`EXPORT_FORMATS`):
     Wavefront OBJ per frame: vertices and quad faces only (OBJ holds no line cells in
     meshio); a scene without a cloth has nothing to write and is refused.
 
-Every file is written to a temporary name in the output directory and renamed into place, so
-no file is ever half-written. See ``docs/file-formats.md``.
+Every file is written to a temporary name in the output directory, fsync'ed and renamed into
+place (:func:`springsim._atomic.write_atomic`, as for trajectories), so no file is ever
+half-written; a new file gets ``0o666`` less the umask, a replaced one keeps its mode. See ``docs/file-formats.md``.
 """
 
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
 
+from ._atomic import write_atomic
 from .errors import SpringsimError
 from .topology import cloth_quads as grid_quads
 from .topology import springs_outside_grids
@@ -77,16 +77,9 @@ def cloth_quads(model) -> np.ndarray:
 
 
 def _atomic(path: Path, write) -> Path:
-    """Call ``write(tmp)`` for a temporary path next to ``path``, then rename it to ``path``."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}-", suffix=path.suffix, dir=path.parent)
-    os.close(fd)
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    """Write ``path`` atomically with ``write(tmp)`` (:func:`springsim._atomic.write_atomic`: the same rule for the
+    file mode as trajectories, ``0o666`` less the umask for a new file)."""
+    write_atomic(path, write)
     return path
 
 
@@ -137,6 +130,8 @@ def export_trajectory(model, traj, out_dir, *, fmt: str = "vtu", stem: str = "fr
     lines = np.asarray(model.spring_indices, dtype=np.int64).reshape(-1, 2)
     if fmt == "obj" and not len(quads):
         raise SpringsimError("export: OBJ holds faces only and this scene has no cloth; use ply or vtu for springs")
+    if traj.q.shape[0] == 0:
+        raise SpringsimError("export: the trajectory has no frames")
     frames = list(range(0, traj.q.shape[0], int(every)))
     if frames[-1] != traj.q.shape[0] - 1:
         frames.append(traj.q.shape[0] - 1)

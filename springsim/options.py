@@ -22,7 +22,7 @@ from dataclasses import dataclass, field, fields, replace
 
 from .errors import SceneError, SceneTypeError
 
-__all__ = ["BACKENDS", "MAX_STEPS", "DEFAULT_STEPS", "SolverConfig", "option", "describe_int", "steps_for_duration"]
+__all__ = ["ADAPTIVE_H_MIN", "BACKENDS", "MAX_STEPS", "DEFAULT_STEPS", "SolverConfig", "option", "describe_int", "steps_for_duration"]
 
 #: Largest number of steps a run may ask for (a guard against overflowing step counts).
 MAX_STEPS = 10**12
@@ -32,6 +32,10 @@ BACKENDS = ("serial", "petsc")
 
 #: Run length used when neither the scene nor the caller gives one.
 DEFAULT_STEPS = 100
+
+#: Smallest step of adaptive runs (the ``h_min`` default of :func:`springsim.adaptive.simulate_adaptive`):
+#: the lower bound of ``max_step``.
+ADAPTIVE_H_MIN = 1e-7
 
 
 def describe_int(value: int) -> str:
@@ -187,8 +191,9 @@ class SolverConfig:
     time_atol: float | None = option(None, kind="float", cli="--time-atol", metavar="A", lo=0.0, strict=True,
                                      help="adaptive time stepping: absolute local error tolerance [m, m/s] (default: "
                                           "time_rtol)")
-    max_step: float | None = option(None, kind="float", cli="--max-step", metavar="H", lo=0.0, strict=True,
-                                    help="adaptive time stepping: largest step [s] (default a tenth of the run)")
+    max_step: float | None = option(None, kind="float", cli="--max-step", metavar="H", lo=ADAPTIVE_H_MIN,
+                                    help="adaptive time stepping: largest step [s], at least 1e-7 s (default a tenth "
+                                         "of the run)")
 
     backend: str | None = option(None, kind="name", cli="--backend", metavar="NAME",
                                  help="serial (default) or petsc: distributed assembly and solves on PETSc, run under "
@@ -256,7 +261,9 @@ class SolverConfig:
     def from_yaml(cls, block, *, default_dt: float | None = None, extra: tuple[str, ...] = ()) -> tuple:
         """The config of a YAML ``solver:`` mapping, and the values of its ``extra`` keys (a dict).
 
-        ``default_dt`` replaces a missing ``timestep`` (the ``benchmark_cloth`` block's 1/60 s).
+        ``default_dt`` replaces a missing ``timestep`` (the ``benchmark_cloth`` block's 1/60 s). A key whose
+        value is null (``timestep: null``, ``gravity: ~``) counts as not given: the field takes its default,
+        and a required field without one is refused.
 
         Raises
         ------
@@ -273,9 +280,11 @@ class SolverConfig:
         for key in ("type",) + (() if default_dt is not None else ("timestep",)):
             if key not in block:
                 raise SceneError("solver", f"missing required key {key!r}")
-        values = {by_key[k]: v for k, v in block.items() if k in by_key}
+            if block[key] is None:
+                raise SceneError(f"solver.{key}", "is required and has no default; got null")
+        values = {by_key[k]: v for k, v in block.items() if k in by_key and v is not None}
         values.setdefault("dt", default_dt)
-        return cls(**values), {k: block[k] for k in extra if k in block}
+        return cls(**values), {k: block[k] for k in extra if block.get(k) is not None}
 
     # -- command line -------------------------------------------------------------------------------------
     @classmethod

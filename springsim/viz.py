@@ -3,7 +3,8 @@
 matplotlib is an optional extra (``pip install 'springsim[plot]'``) imported only
 when a function here is called. Figures are standalone ``matplotlib.figure.Figure``
 objects, so no backend, display or ``MPLBACKEND`` setting is needed, and pyplot's state is
-left alone. Springs are drawn as line segments (one ``Line3DCollection``), a cloth grid
+left alone. Pictures are written atomically (:func:`springsim._atomic.write_atomic`): a failed or
+interrupted render leaves the previous file as it was; the directory must exist. Springs are drawn as line segments (one ``Line3DCollection``), a cloth grid
 (``model.cloth_grids``) as a shaded surface (its own springs are the surface; every other
 spring stays a line), free particles as dots and fixed ones as black squares.
 """
@@ -88,9 +89,21 @@ def plot_dof(traj, particle_id: int, dof, y_range=None, out_png=None, *, title: 
     fig.tight_layout()
     if out_png is None:
         return fig
-    Path(out_png).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out_png, dpi=dpi)
-    return Path(out_png)
+    return _save_figure(fig, out_png, dpi)
+
+
+def _save_figure(fig, out, dpi) -> Path:
+    """Save ``fig`` to ``out`` atomically (:func:`springsim._atomic.write_atomic`), in the format its extension names."""
+    from ._atomic import write_atomic
+
+    ext = Path(out).suffix.lower()[1:]
+    known = fig.canvas.get_supported_filetypes()
+    if ext not in known:
+        raise SpringsimError(f"{out}: unknown picture extension {'.' + ext if ext else '(none)'}; give a name "
+                             f"ending in {', '.join('.' + k for k in sorted(known))}")
+    # the format given explicitly: matplotlib writes exactly the temporary file, never "<name>.png"
+    write_atomic(out, lambda tmp: fig.savefig(tmp, dpi=dpi, format=ext))
+    return Path(out)
 
 
 def run_title(traj, scene: str | None = None) -> str:
@@ -107,13 +120,27 @@ def run_title(traj, scene: str | None = None) -> str:
     return f"{scene}: {body}" if scene and body else (scene or body)
 
 
+#: Largest coordinate [m] a picture draws: the 3D projection multiplies coordinates, which must not overflow.
+MAX_DRAWN_COORDINATE = 1e100
+
+
 def _bounds(q: np.ndarray):
-    """Cube bounds (lo, hi) (3,) around all finite positions in ``q`` (..., 3), equal extents."""
+    """Cube bounds (lo, hi) (3,) around all finite positions in ``q`` (..., 3), equal extents.
+
+    Raises
+    ------
+    SpringsimError
+        When a finite coordinate exceeds :data:`MAX_DRAWN_COORDINATE` in magnitude.
+    """
     pts = q.reshape(-1, 3)
     pts = pts[np.all(np.isfinite(pts), axis=1)]
     if pts.size == 0:
         return -np.ones(3), np.ones(3)
     lo, hi = pts.min(axis=0), pts.max(axis=0)
+    big = float(max(np.max(np.abs(lo)), np.max(np.abs(hi))))
+    if big > MAX_DRAWN_COORDINATE:
+        raise SpringsimError(f"render: positions reach {big:.3g} m; pictures draw coordinates up to "
+                             f"{MAX_DRAWN_COORDINATE:g} m in magnitude")
     c, r = 0.5 * (lo + hi), 0.5 * float(np.max(hi - lo))
     r = r * 1.05 if r > 0 else 1.0
     return c - r, c + r
@@ -196,9 +223,7 @@ def render_frame(model, q: np.ndarray, out_png, *, title: str | None = None, bou
     if title:
         ax.set_title(title)
     fig.tight_layout()
-    Path(out_png).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out_png, dpi=dpi)
-    return Path(out_png)
+    return _save_figure(fig, out_png, dpi)
 
 
 def render_gif(model, traj, out_gif, *, every: int = 1, fps: int = 20, show_springs: bool = True,
@@ -230,19 +255,29 @@ def render_gif(model, traj, out_gif, *, every: int = 1, fps: int = 20, show_spri
 
     if int(every) != every or every < 1:
         raise SpringsimError(f"render.every: must be an integer >= 1, got {every!r}")
+    if Path(out_gif).suffix.lower() != ".gif":
+        raise SpringsimError(f"{out_gif}: an animated GIF needs a name ending in .gif")
+    if traj.q.shape[0] == 0:
+        raise SpringsimError("render: the trajectory has no frames")
     frames = list(range(0, traj.q.shape[0], int(every)))
     if frames[-1] != traj.q.shape[0] - 1:
         frames.append(traj.q.shape[0] - 1)
     lo, hi = _bounds(traj.q[frames])
     fig, ax = _axes(Figure, lo, hi, size)
-    Path(out_gif).parent.mkdir(parents=True, exist_ok=True)
-    writer = PillowWriter(fps=fps)
-    with writer.saving(fig, str(out_gif), dpi):
-        for k in frames:
-            for coll in list(ax.collections):
-                coll.remove()
-            ax.view_init(elev=elev, azim=azim)
-            _draw(ax, model, traj.q[k], show_springs=show_springs, show_particles=show_particles, surface=surface)
-            ax.set_title(f"{title}\nt = {traj.t[k]:.3f} s" if title else f"t = {traj.t[k]:.3f} s")
-            writer.grab_frame()
+
+    def write(tmp):  # PillowWriter writes the file when the block ends, also when it ends by an exception
+        writer = PillowWriter(fps=fps)
+        with writer.saving(fig, tmp, dpi):
+            for k in frames:
+                for coll in list(ax.collections):
+                    coll.remove()
+                ax.view_init(elev=elev, azim=azim)
+                _draw(ax, model, traj.q[k], show_springs=show_springs, show_particles=show_particles,
+                      surface=surface)
+                ax.set_title(f"{title}\nt = {traj.t[k]:.3f} s" if title else f"t = {traj.t[k]:.3f} s")
+                writer.grab_frame()
+
+    from ._atomic import write_atomic
+
+    write_atomic(out_gif, write)  # an interrupted or failed render leaves the previous file as it was
     return Path(out_gif)

@@ -7,9 +7,13 @@ adding one is a single line::
 
     COMMANDS["plot"] = "springsim.cli.pictures:plot_command"
 
-Exit status: 0 success, 1 simulation blew up, 2 user error (bad scene, bad option,
-missing file; one line ``springsim: error: ...`` on stderr, no traceback), 130
-interrupted. Progress goes to stderr, results to stdout.
+Exit status: 0 success, 1 simulation blew up (or its frames could not be written to
+``--out``), 2 user error (bad scene, bad option, missing file; one line
+``springsim: error: ...`` on stderr, no traceback), 130 interrupted (Ctrl-C), 143 terminated
+(SIGTERM; handled like Ctrl-C: the frames so far are saved), 141 stdout closed early
+(``springsim ... | head``; nothing is printed about it). Progress goes to stderr, results to stdout;
+Python warnings are shown as one ``springsim: warning: ...`` line each; numpy's floating-point
+warnings (overflow, invalid value) are not shown, the run's own checks report their consequences.
 """
 
 from __future__ import annotations
@@ -17,11 +21,12 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+import warnings
 from dataclasses import dataclass
 from typing import Callable
 
 from ..errors import SpringsimError
-from .run import _Exit, configure_logging, error_text
+from .run import _Exit, configure_logging, error_text, interrupt_status, signals_as_interrupts
 
 __all__ = ["COMMANDS", "Command", "main", "build_parser"]
 
@@ -55,10 +60,10 @@ def _resolve(cmd):
 
 
 class _Parser(argparse.ArgumentParser):
-    """argparse with one-line usage errors (``springsim run: error: argument --steps: ...; see --help``)."""
+    """argparse with one-line usage errors (``springsim: error: argument --steps: ...; see 'springsim run --help'``)."""
 
     def error(self, message):
-        self.exit(2, f"{self.prog}: error: {' '.join(message.split())}; see '{self.prog} --help'\n")
+        self.exit(2, f"springsim: error: {' '.join(message.split())}; see '{self.prog} --help'\n")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -104,19 +109,50 @@ def main(argv: list[str] | None = None) -> int:
         retain_freed_memory()
     scene = getattr(args, "scene", None)
     try:
-        with configure_logging(getattr(args, "verbose", 0), getattr(args, "quiet", False)):
-            return int(args._command.run(args))
+        with signals_as_interrupts(), warnings.catch_warnings():
+            warnings.showwarning = _show_warning
+            # numpy's floating-point warnings on extreme inputs: the run's own checks (non-finite states, the
+            # energy bound, failed solves) report what they lead to, naming the step and the particle
+            warnings.filterwarnings("ignore", r"(overflow|invalid value|divide by zero|underflow) encountered",
+                                    RuntimeWarning)
+            with configure_logging(getattr(args, "verbose", 0), getattr(args, "quiet", False)):
+                status = int(args._command.run(args))
+            sys.stdout.flush()  # a closed pipe shows here, not at exit
+            return status
+    except BrokenPipeError:
+        return _stdout_closed()
     except SpringsimError as e:
         return _error(error_text(e, scene))
     except _Exit as e:
         return e.status
     except KeyboardInterrupt:
-        print("springsim: interrupted", file=sys.stderr)
-        return 130
+        print(f"springsim: {'terminated' if interrupt_status() == 143 else 'interrupted'}", file=sys.stderr)
+        return interrupt_status()
     except MemoryError:
         return _error("out of memory: the scene is too large for this machine")
     except OSError as e:
         return _error(error_text(e))
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    """A Python warning (numpy, matplotlib, springsim) as one ``springsim: warning:`` line, without source paths."""
+    try:
+        print(f"springsim: warning: {' '.join(str(message).split())[:300]}", file=sys.stderr)
+    except (OSError, ValueError):
+        pass
+
+
+def _stdout_closed() -> int:
+    """stdout was closed by its reader (``| head``): stop quietly, exit 141 (128 + SIGPIPE), as other tools do."""
+    import os
+
+    try:  # later writes, and the interpreter's flush at exit, go nowhere instead of raising again
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError, AttributeError):
+        pass
+    return 141
 
 
 if __name__ == "__main__":  # pragma: no cover

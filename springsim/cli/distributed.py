@@ -55,7 +55,8 @@ def run_distributed(args, scene, cfg) -> int:
     driver) over a :class:`~springsim.distributed.DistributedSystem`; rank 0 prints and saves.
     """
     from ..distributed import env_rank, import_petsc
-    from .run import _Exit, _provenance, execute, print_rows, save_or_rescue, summary_lines, warn_failed_steps
+    from .run import (_Exit, _provenance, execute, print_rows, save_or_rescue, save_stopped_run, summary_lines,
+                      warn_failed_steps)
 
     import_petsc()  # BackendUnavailable (a SpringsimError): one line with the install hint
     root = env_rank() == 0
@@ -65,18 +66,14 @@ def run_distributed(args, scene, cfg) -> int:
     except SimulationError as e:
         if e.trajectory is None:  # not the root rank: the root reports
             raise _Exit(1) from None
-        print(f"springsim: error: {e}", file=sys.stderr)
-        if args.out is not None and e.trajectory.frame_count:
-            _provenance(e.trajectory, scene, cfg, args.scene)
-            save_or_rescue(e.trajectory, args.out)
-            print(f"springsim: saved {e.trajectory.frame_count} finite frame(s) up to t={e.trajectory.t[-1]:g} s "
-                  f"to {args.out}", file=sys.stderr)
-        return 1
+        return save_stopped_run(e, scene, cfg, args.out)
     if traj is None:  # not the root rank
         return 0
     if args.out is not None:
-        _provenance(traj, scene, cfg, args.scene)
-        save_or_rescue(traj, args.out)
+        _provenance(traj, scene, cfg)
+        _, status = save_or_rescue(traj, args.out)
+        if status:
+            return status
     failed = warn_failed_steps(traj, keep_going=args.keep_going)
     if not args.quiet:
         rows = summary_lines(scene, cfg, integrator, traj)

@@ -15,24 +15,28 @@ import argparse
 import sys
 from pathlib import Path
 
+from .._atomic import check_output_path
 from ..errors import SceneError, SimulationError, SimulationInterrupted, SpringsimError
 from .argtypes import int_at_least
 from .run import add_run_options, execute, load_and_configure, load_trajectory_for, warn_failed_steps
+
+#: The pictures each command writes (``--out`` must end in one of these).
+PICTURE_SUFFIXES = {"plot": (".png",), "render --frame": (".png",), "render --every": (".gif",)}
 
 __all__ = ["plot_command", "render_command"]
 
 
 def _run_scene(args):
     """``(scene, trajectory)`` of the scene ``args.scene`` run as ``springsim run`` would (exit 1/130 on failure)."""
-    from .run import _Exit
+    from .run import _Exit, _stopped_by, interrupt_status
 
     scene, cfg = load_and_configure(args)
     try:
         _, traj = execute(scene, cfg)
     except (SimulationError, SimulationInterrupted) as e:
-        print(f"springsim: {'interrupted' if isinstance(e, SimulationInterrupted) else 'error'}: {e}",
-              file=sys.stderr)
-        raise _Exit(130 if isinstance(e, SimulationInterrupted) else 1) from None
+        interrupted = isinstance(e, SimulationInterrupted)
+        print(f"springsim: {_stopped_by() if interrupted else 'error'}: {e}", file=sys.stderr)
+        raise _Exit(interrupt_status() if interrupted else 1) from None
     warn_failed_steps(traj)
     return scene, traj
 
@@ -49,10 +53,11 @@ class _PlotCommand:
         from ..viz import plot_dof, require_matplotlib, run_title
 
         require_matplotlib()
+        out = args.out if args.out else f"{Path(args.scene).stem}_plot.png"  # a str: Path() drops a trailing "/"
+        check_output_path(out, suffixes=PICTURE_SUFFIXES["plot"], inputs=(args.scene,))  # before the run
         scene, traj = _run_scene(args)
         if scene.plot is None:
             raise SceneError("plot", "the scene has no plot: block (particle_id, dof, y_range)")
-        out = Path(args.out) if args.out else Path(f"{Path(args.scene).stem}_plot.png")
         plot_dof(traj, scene.plot.particle_id, scene.plot.dof, scene.plot.y_range, out,
                  title=run_title(traj, scene.name))
         print(f"wrote {out}")
@@ -77,6 +82,10 @@ class _RenderCommand:
         from ..viz import render_frame, render_gif, require_matplotlib, run_title
 
         require_matplotlib()
+        out = args.out  # a str: Path() drops a trailing "/"
+        # before the run: the same rules as `run --out` (atomic, never a directory, device or an input file)
+        check_output_path(out, suffixes=PICTURE_SUFFIXES["render --every" if args.every is not None else "render --frame"],
+                          inputs=[p for p in (args.scene, args.scene_of_npz) if p])
         src = Path(args.scene)
         if src.suffix == ".npz":
             if not args.scene_of_npz:
@@ -85,10 +94,7 @@ class _RenderCommand:
             traj = load_trajectory_for(src, scene, args.scene_of_npz)
         else:
             scene, traj = _run_scene(args)
-        out = Path(args.out)
         if args.every is not None:
-            if out.suffix.lower() != ".gif":
-                raise SpringsimError("render: --every writes an animated GIF; give --out FILE.gif")
             render_gif(scene.model, traj, out, every=args.every, fps=args.fps, title=run_title(traj, scene.name))
         else:
             k = traj.frame_count - 1 if args.frame is None else args.frame

@@ -11,7 +11,9 @@ import argparse
 import contextlib
 import logging
 import os
+import signal
 import sys
+import threading
 import warnings
 from pathlib import Path
 
@@ -29,6 +31,61 @@ class _Exit(Exception):
     def __init__(self, status: int):
         super().__init__(status)
         self.status = status
+
+
+# -- signals ---------------------------------------------------------------------------------------
+#: The signals received by the current command (SIGINT, SIGTERM), in order.
+_received: list[int] = []
+
+
+def interrupt_status() -> int:
+    """Exit status of an interrupted command: 128 + the signal (130 for Ctrl-C, 143 for SIGTERM)."""
+    return 128 + (_received[-1] if _received else signal.SIGINT)
+
+
+@contextlib.contextmanager
+def _handlers(handlers: dict):
+    """Install signal ``handlers`` while the block runs (only in the main thread, where Python runs them)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    saved = {}
+    try:
+        for signum, handler in handlers.items():
+            saved[signum] = signal.getsignal(signum)
+            signal.signal(signum, handler)
+        yield
+    finally:
+        for signum, handler in saved.items():
+            signal.signal(signum, handler if handler is not None else signal.SIG_DFL)
+
+
+@contextlib.contextmanager
+def signals_as_interrupts():
+    """While the block runs, SIGTERM stops it like Ctrl-C: a ``KeyboardInterrupt`` (a run keeps its frames and
+    saves them, temporary files are removed); :func:`interrupt_status` tells which signal it was."""
+    del _received[:]
+
+    def interrupt(signum, frame):
+        _received.append(signum)
+        raise KeyboardInterrupt
+
+    with _handlers({signal.SIGINT: interrupt, signal.SIGTERM: interrupt}):
+        yield
+
+
+@contextlib.contextmanager
+def signals_deferred():
+    """While the block runs, SIGINT and SIGTERM are recorded (in the yielded list) instead of raised, so a
+    save in progress finishes; the caller then ends with :func:`interrupt_status`."""
+    got: list[int] = []
+
+    def record(signum, frame):
+        got.append(signum)
+        _received.append(signum)
+
+    with _handlers({signal.SIGINT: record, signal.SIGTERM: record}):
+        yield got
 
 
 def add_run_options(p: argparse.ArgumentParser) -> None:
@@ -104,6 +161,10 @@ def execute(scene, cfg, *, record: bool = True, frame_every: int = 1, progress=T
     from ..driver import simulate
     from ..progress import as_progress, logger, phase
 
+    if cfg.dt is None:  # a config built in Python without a step (the YAML loader requires one)
+        from ..errors import SceneError
+
+        raise SceneError("solver.timestep", "missing: give solver.timestep or --dt")
     steps = cfg.run_steps()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SpringsimWarning)  # reported in the CLI's own lines
@@ -228,39 +289,79 @@ def summary_lines(scene, cfg, integrator, traj) -> list[tuple[str, str]]:
     return rows
 
 
-def save_or_rescue(traj, out: str) -> None:
-    """Write ``traj`` to ``out``; if that fails, to a rescue file in the temporary directory (named on stderr)."""
-    try:
-        traj.save(out)
-        return
-    except (OSError, SpringsimError) as e:
-        why = getattr(e, "strerror", None) or str(e)
+def _rescue_path() -> str:
+    """A name for a rescue file in the temporary directory that no file has (the file appears only once written)."""
+    import secrets
     import tempfile
 
-    fd, rescue = tempfile.mkstemp(prefix="springsim-rescue-", suffix=".npz")
-    os.close(fd)
-    try:
-        traj.save(rescue)
-    except (OSError, SpringsimError) as e2:
-        raise SpringsimError(f"--out {out}: cannot write ({why}); the rescue copy failed too "
-                             f"({getattr(e2, 'strerror', None) or e2}); the frames are lost") from None
-    print(f"springsim: error: --out {out}: cannot write ({why}); saved {traj.frame_count} frame(s) to {rescue} "
-          f"instead", file=sys.stderr)
-    raise _Exit(1)
+    d = tempfile.gettempdir()
+    while True:
+        path = os.path.join(d, f"springsim-rescue-{secrets.token_hex(6)}.npz")
+        if not os.path.lexists(path):
+            return path
+
+
+def _why(e: BaseException) -> str:
+    if isinstance(e, KeyboardInterrupt):
+        return "interrupted"
+    return " ".join(str(getattr(e, "strerror", None) or e).split())
+
+
+def save_or_rescue(traj, out: str, *, interrupted: bool = False) -> tuple[str | None, int]:
+    """Write ``traj`` to ``out``, else to a rescue file in the temporary directory: ``(file written or None, status)``.
+
+    Ctrl-C and SIGTERM wait until the write is finished (:func:`signals_deferred`): the frames are
+    never lost to an interrupt during the save. When ``out`` cannot be written (full disk, or a
+    ``KeyboardInterrupt`` inside the write), the frames go to ``springsim-rescue-*.npz`` in the
+    temporary directory, written atomically like ``out`` (no empty or partial rescue file), and
+    one line names it; when that fails too, one line says the frames are lost.
+
+    The status: :func:`interrupt_status` (130, 143) when the run was ``interrupted`` or a signal
+    arrived during the save, else 0 when ``out`` was written, else 1.
+    """
+    why = where = None
+    with signals_deferred() as got:
+        try:
+            traj.save(out)
+            where = out
+        except (OSError, SpringsimError, KeyboardInterrupt) as e:
+            why = _why(e)
+            interrupted = interrupted or isinstance(e, KeyboardInterrupt)
+            rescue = _rescue_path()
+            try:
+                traj.save(rescue)
+                where = rescue
+            except (OSError, SpringsimError, KeyboardInterrupt) as e2:
+                print(f"springsim: error: --out {out}: cannot write ({why}); the rescue copy in "
+                      f"{os.path.dirname(rescue)} failed too ({_why(e2)}); the frames are lost", file=sys.stderr)
+            else:
+                print(f"springsim: error: --out {out}: cannot write ({why}); saved {traj.frame_count} frame(s) to "
+                      f"{rescue} instead", file=sys.stderr)
+    if interrupted or got:
+        return where, interrupt_status()
+    return where, 0 if why is None else 1
 
 
 def load_trajectory_for(path, scene, scene_path):
     """The trajectory ``.npz`` at ``path``, checked against the scene it is drawn or exported with.
 
-    A different particle count is an error; a different model fingerprint (the file records the
-    model it was computed from) is a one-line warning on stderr.
+    A different particle count is an error, found from the array headers before any data is read
+    (a 7 MB compressed file announcing 3e8 particles costs nothing); so is a file without frames.
+    A different model fingerprint (the file records the model it was computed from) is a one-line
+    warning on stderr.
     """
+    from .._npz import npz_headers
     from ..driver import Trajectory
 
+    q = npz_headers(path).get("q")
+    n = scene.model.particle_count
+    if q is not None and len(q.shape) == 3 and q.shape[1] != n:
+        raise SpringsimError(f"{path} has {q.shape[1]} particles (array q {q.shape}), {scene_path} has {n}")
     traj = Trajectory.load(path)
-    if traj.q.shape[1] != scene.model.particle_count:
-        raise SpringsimError(f"{path} has {traj.q.shape[1]} particles, {scene_path} has "
-                             f"{scene.model.particle_count}")
+    if traj.q.shape[1] != n:
+        raise SpringsimError(f"{path} has {traj.q.shape[1]} particles, {scene_path} has {n}")
+    if traj.frame_count == 0:
+        raise SpringsimError(f"{path}: the trajectory has no frames")
     recorded = traj.meta.get("model_fingerprint")
     if recorded is not None and recorded != scene.model.fingerprint():
         print(f"springsim: warning: {path} was computed from another model than {scene_path} "
@@ -268,13 +369,13 @@ def load_trajectory_for(path, scene, scene_path):
     return traj
 
 
-def _provenance(traj, scene, cfg, scene_path) -> None:
-    """Add the scene file's SHA-256 and the run options to ``traj.meta`` (saved with ``--out``)."""
+def _provenance(traj, scene, cfg, scene_path=None) -> None:
+    """Add the scene's SHA-256 (of the bytes loaded, :attr:`Scene.sha256`: the file is not read again, so a scene
+    moved, deleted or edited during the run changes nothing) and the run options to ``traj.meta``."""
     import dataclasses
-    import hashlib
 
-    with open(scene_path, "rb") as fh:
-        traj.meta["scene_sha256"] = hashlib.file_digest(fh, "sha256").hexdigest()
+    if scene.sha256:
+        traj.meta["scene_sha256"] = scene.sha256
     traj.meta["run_options"] = {k: v for k, v in dataclasses.asdict(cfg).items() if v is not None}
 
 
@@ -301,7 +402,7 @@ def _load_agreed(args):
     try:
         scene, cfg = load_and_configure(args)
         if args.out is not None and env_rank() == 0:
-            check_output_path(args.out)
+            check_output_path(args.out, suffixes=(".npz",), inputs=(args.scene,))
     except (SpringsimError, OSError) as e:
         err = error_text(e, args.scene)
     err = agree(err)
@@ -348,23 +449,21 @@ def _run(args: argparse.Namespace) -> int:
     scene, cfg = load_and_configure(args)
     if cfg.backend == "petsc":
         return _run_petsc(args, scene, cfg)
-    if args.out is not None:
-        check_output_path(args.out)  # before the run: a run is never lost to an unwritable --out
+    if args.out is not None:  # before the run: a run is never lost to an unwritable --out
+        check_output_path(args.out, suffixes=(".npz",), inputs=(args.scene,))
     record = args.out is not None
     try:
         integrator, traj = execute(scene, cfg, record=record, frame_every=args.frame_every)
     except (SimulationError, SimulationInterrupted) as e:
-        interrupted = isinstance(e, SimulationInterrupted)
-        print(f"springsim: {'interrupted' if interrupted else 'error'}: {e}", file=sys.stderr)
-        if args.out is not None and e.trajectory is not None and e.trajectory.frame_count:
-            _provenance(e.trajectory, scene, cfg, args.scene)
-            save_or_rescue(e.trajectory, args.out)
-            print(f"springsim: saved {e.trajectory.frame_count} finite frame(s) up to "
-                  f"t={e.trajectory.t[-1]:g} s to {args.out}", file=sys.stderr)
-        return 130 if interrupted else 1
+        return save_stopped_run(e, scene, cfg, args.out)
     if args.out is not None:
-        _provenance(traj, scene, cfg, args.scene)
-        save_or_rescue(traj, args.out)
+        _provenance(traj, scene, cfg)
+        where, status = save_or_rescue(traj, args.out)
+        if status:
+            if where == args.out:
+                print(f"springsim: {_stopped_by()}; the run had finished and its {traj.frame_count} frame(s) are "
+                      f"saved to {where}", file=sys.stderr)
+            return status
     failed = warn_failed_steps(traj, keep_going=args.keep_going)
     if not args.quiet:
         rows = summary_lines(scene, cfg, integrator, traj)
@@ -372,6 +471,26 @@ def _run(args: argparse.Namespace) -> int:
             rows.append(("output", f"{args.out} ({traj.frame_count} frames)"))
         print_rows(rows)
     return 1 if failed and not args.keep_going else 0
+
+
+def _stopped_by() -> str:
+    return "terminated" if interrupt_status() == signal.SIGTERM + 128 else "interrupted"
+
+
+def save_stopped_run(e, scene, cfg, out) -> int:
+    """Report a run stopped by ``e`` (:class:`SimulationError` or :class:`SimulationInterrupted`), save its frames to
+    ``out`` (if given; :func:`save_or_rescue`) and return the exit status (1, or 130/143 when interrupted)."""
+    interrupted = isinstance(e, SimulationInterrupted)
+    print(f"springsim: {_stopped_by() if interrupted else 'error'}: {e}", file=sys.stderr)
+    status = interrupt_status() if interrupted else 1
+    if out is not None and e.trajectory is not None and e.trajectory.frame_count:
+        _provenance(e.trajectory, scene, cfg)
+        where, saved = save_or_rescue(e.trajectory, out, interrupted=interrupted)
+        if where is not None:
+            print(f"springsim: saved {e.trajectory.frame_count} finite frame(s) up to t={e.trajectory.t[-1]:g} s "
+                  f"to {where}", file=sys.stderr)
+        status = saved or status
+    return status
 
 
 class _RunCommand:

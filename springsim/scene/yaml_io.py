@@ -24,6 +24,7 @@ vectorised.
 
 from __future__ import annotations
 
+import hashlib
 import inspect
 import math
 import os
@@ -146,6 +147,9 @@ class Scene:
         File path, or ``"<string>"`` for text.
     name : str
         The scene's ``name:`` or the file's stem.
+    sha256 : str
+        SHA-256 (hex) of the bytes the scene was loaded from (the file as it was read, or the
+        UTF-8 of the text); empty for scenes built from a parsed document.
     """
 
     model: Model
@@ -154,6 +158,7 @@ class Scene:
     source: str = "<string>"
     name: str = "scene"
     metadata: dict = field(default_factory=dict)
+    sha256: str = ""
 
 
 # -- small checks -------------------------------------------------------------------------
@@ -516,8 +521,8 @@ def _available_memory() -> int | None:
         return None
 
 
-def _read_scene_file(source: str) -> str:
-    """The text of a scene file: a regular file of at most :data:`MAX_SCENE_BYTES`, UTF-8."""
+def _read_scene_file(source: str) -> tuple[str, bytes]:
+    """The text of a scene file (a regular file of at most :data:`MAX_SCENE_BYTES`, UTF-8) and its bytes."""
     try:
         st = os.stat(source)
     except FileNotFoundError:
@@ -539,7 +544,7 @@ def _read_scene_file(source: str) -> str:
     if len(data) > MAX_SCENE_BYTES:
         raise SceneError(source, f"is more than the limit of {MAX_SCENE_BYTES} bytes")
     try:
-        return data.decode("utf-8")
+        return data.decode("utf-8"), data
     except UnicodeDecodeError as e:
         raise SceneError(source, f"not UTF-8 text (byte {e.start})") from None
 
@@ -619,11 +624,12 @@ def load_scene(path_or_text) -> Scene:
     """
     if _looks_like_path(path_or_text):
         source = os.fspath(path_or_text)
-        text = _read_scene_file(source)
+        text, data = _read_scene_file(source)
     elif isinstance(path_or_text, str):
         source, text = "<string>", path_or_text
         if len(text) > MAX_SCENE_BYTES:
             raise SceneError(source, f"is more than the limit of {MAX_SCENE_BYTES} bytes")
+        data = text.encode("utf-8", "surrogatepass")
     else:
         raise SceneError("", f"expected a path or YAML text, got {type(path_or_text).__name__}")
     try:
@@ -644,11 +650,13 @@ def load_scene(path_or_text) -> Scene:
     except RecursionError:
         raise SceneError(source, "YAML document is nested too deeply") from None
     try:
-        return parse_scene(doc, source=source)
+        scene = parse_scene(doc, source=source)
     except RecursionError:
         raise SceneError(source, "YAML document is nested too deeply") from None
     except MemoryError:
         raise SceneError(source, "the scene does not fit in memory") from None
+    scene.sha256 = hashlib.sha256(data).hexdigest()  # of the bytes parsed, whatever happens to the file later
+    return scene
 
 
 def _one_line(s: str) -> str:

@@ -199,7 +199,7 @@ BAD = [
     (HEAD.replace("}", ", newton_tol: 0}") + "particles: [{pos: [0,0,0], mass: 1}]", "solver.newton_tol"),
     (HEAD.replace("}", ", time_rtol: -1}") + "particles: [{pos: [0,0,0], mass: 1}]", "solver.time_rtol"),
     (HEAD.replace("}", ", max_step: -0.01}") + "particles: [{pos: [0,0,0], mass: 1}]",
-     "solver.max_step: must be > 0, got -0.01"),
+     "solver.max_step: must be >= 1e-07, got -0.01"),
     (HEAD.replace("}", ", steps: 3, duration: 1}") + "particles: [{pos: [0,0,0], mass: 1}]",
      "steps or duration, not both"),
     (HEAD, "no particles"),

@@ -266,16 +266,17 @@ def test_out_follows_symlinks_and_keeps_modes(tmp_path, capsys):
 
 def test_unwritable_out_fails_before_the_run(tmp_path, capsys, monkeypatch):
     """A directory that does not take new files fails --out at once, before any step is computed."""
-    import tempfile
-
     steps = []
     real_simulate = springsim.driver.simulate
     monkeypatch.setattr(springsim.driver, "simulate", lambda *a, **k: steps.append(1) or real_simulate(*a, **k))
+    real_open = os.open
 
-    def refuse(*a, **k):
-        raise PermissionError(errno.EACCES, "Permission denied")
+    def refuse(path, *a, **k):  # the directory refuses new files (root ignores permission bits: inject it)
+        if str(tmp_path) in os.fspath(path):
+            raise PermissionError(errno.EACCES, "Permission denied")
+        return real_open(path, *a, **k)
 
-    monkeypatch.setattr(tempfile, "mkstemp", refuse)
+    monkeypatch.setattr(os, "open", refuse)
     assert "cannot write" in _one_line_error(capsys, "run", SPRING, "--out", tmp_path / "x.npz")
     assert steps == []
 
@@ -299,7 +300,7 @@ def test_full_disk_at_the_end_keeps_the_frames(tmp_path, capsys, monkeypatch):
     assert code == 1 and "No space left on device" in err and "Traceback" not in err
     rescue = Path(err.split(" to ")[-1].split(" instead")[0])
     assert Trajectory.load(rescue).frame_count == 5
-    assert out.read_bytes() == b"previous" and not list(tmp_path.glob(".tmp-*"))
+    assert out.read_bytes() == b"previous" and not list(tmp_path.glob(".*"))
     rescue.unlink()
 
 
