@@ -75,6 +75,8 @@ _SPRING_KEYS = ("particle_ids", "stiffness", "damping", "rest_length")
 #: Accepted aliases of spring keys (canonical: the assignment's ``stiffness`` and ``damping``).
 _SPRING_ALIASES = {a: c for a, c in COEFFICIENT_ALIASES.items() if c in _SPRING_KEYS}
 _GRAV_KEYS = ("particle_ids", "G", "softening")
+#: Keys whose absence (or null) means a computed default; the builder marks that default with NaN.
+_DEFAULT_WHEN_NULL = ("rest_length", "softening")
 _PLOT_KEYS = ("particle_id", "dof", "y_range")
 _CLOTH_KEYS = tuple(p for p in inspect.signature(ModelBuilder.add_cloth_grid).parameters if p != "self")
 _BENCH_KEYS = ("n",) + tuple(p for p in inspect.signature(benchmark_cloth_grid).parameters if p != "n")
@@ -355,8 +357,12 @@ def _parse_pairs(group: str, items: list, n: int, keys: tuple[str, ...], value_k
         for key, col in cols.items():
             if key in s:
                 x = s[key]
-                if x is None and key in ("rest_length", "softening"):  # null: the default
-                    continue
+                if key in _DEFAULT_WHEN_NULL:
+                    if x is None:  # null: the default
+                        continue
+                    if x != x:  # NaN would silently mean the default too (the builder's marker for it)
+                        raise SceneError(f"{group}[{k}].{key}", "must be finite (leave it out or give null "
+                                                                 "for the default), got nan")
                 if not _is_num(x):
                     _number(f"{group}[{k}].{key}", x)
                 col[k] = x

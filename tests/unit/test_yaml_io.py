@@ -109,6 +109,19 @@ def test_loader_stays_safe_with_yaml_1_2_numbers():
     assert "not an integer" in _err(HEAD.replace("}", ", steps: !!int '1:30'}") + "particles: [{pos: [0, 0, 0], mass: 1}]\n")
 
 
+def test_nan_rest_length_and_softening_are_refused():
+    """``.nan`` for ``rest_length`` or ``softening`` is an error naming the item, while absent or null means the default."""
+    springs = "springs:\n" + "  - {particle_ids: [0, 1], stiffness: 1}\n" * 3
+    assert _err(TWO + springs + "  - {particle_ids: [0, 1], stiffness: 1, rest_length: .nan}\n").startswith(
+        "springs[3].rest_length: must be finite")
+    msg = _err(TWO + "gravitational:\n  - {particle_ids: [0, 1], G: 1, softening: .NaN}\n")
+    assert msg.startswith("gravitational[0].softening: must be finite") and msg.endswith("got nan")
+    s = load_scene(TWO + "springs:\n  - {particle_ids: [0, 1], stiffness: 1, rest_length: null}\n"
+                   "gravitational:\n  - {particle_ids: [0, 1], G: 1}\n")
+    assert s.model.spring_rest_length[0] == 1.0
+    assert np.isfinite(s.model.gravitational_softening[0]) and s.model.gravitational_softening[0] > 0
+
+
 def test_duration_sets_steps():
     """``duration`` becomes a step count, rounded up; steps and duration exclude each other."""
     s = load_scene("solver: {type: midpoint, timestep: 0.03, duration: 0.1}\nparticles: [{pos: [0,0,0], mass: 1}]")
