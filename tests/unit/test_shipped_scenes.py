@@ -33,6 +33,8 @@ def test_scenes_command_lists_name_particles_springs_description(capsys):
         assert rows[name][1:3] == [str(model.particle_count), str(model.spring_count)]
     assert rows["cloth_16"][3] == "A hanging 16 x 16 cloth (1 m square, 1 kg), one edge pinned"
     assert [line.split()[0] for line in lines[1:]][:3] == ["cloth_16", "cloth_64", "cloth_256"]  # natural order
+    assert cli.main(["scenes", "--paths"]) == 0
+    assert f"({shipped_scene('spring')})" in capsys.readouterr().out
 
 
 def test_run_takes_the_bare_name_of_a_shipped_scene(capsys, tmp_path, monkeypatch):
