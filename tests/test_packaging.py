@@ -29,6 +29,11 @@ def _clean_env(**extra) -> dict:
     return env
 
 
+def _this_springsim_env(**extra) -> dict:
+    """The environment for a child that imports the springsim these tests import (installed or a source tree)."""
+    return _clean_env(PYTHONPATH=str(Path(springsim.__file__).resolve().parents[1]), **extra)
+
+
 def test_springsim_is_imported_from_where_it_is_installed():
     """With a non-editable install the tests import the installed package, not the checkout's ``springsim/``."""
     pkg = Path(springsim.__file__).resolve().parent
@@ -55,7 +60,7 @@ def test_numba_cache_goes_to_a_user_directory(tmp_path):
             "q = np.array([[0.0, 0, 0], [1.5, 0, 0]]); out = np.zeros((2, 3))\n"
             "spring_forces(q, np.zeros((2, 3)), np.array([[0, 1]]), np.ones(1), np.zeros(1), np.ones(1), 1e-9, out)\n"
             "print(config.CACHE_DIR)\n")
-    env = _clean_env(XDG_CACHE_HOME=str(tmp_path / "cache"))
+    env = _this_springsim_env(XDG_CACHE_HOME=str(tmp_path / "cache"))
     env.pop("NUMBA_CACHE_DIR", None)
     out = subprocess.run([sys.executable, "-c", code], env=env, cwd=tmp_path, capture_output=True, text=True,
                          timeout=300)
@@ -67,7 +72,7 @@ def test_numba_cache_goes_to_a_user_directory(tmp_path):
 
 def test_numba_cache_dir_set_by_the_user_is_kept(tmp_path):
     """A NUMBA_CACHE_DIR the user set is left as it is."""
-    env = _clean_env(NUMBA_CACHE_DIR=str(tmp_path / "mine"))
+    env = _this_springsim_env(NUMBA_CACHE_DIR=str(tmp_path / "mine"))
     out = subprocess.run([sys.executable, "-c", "import os, springsim; print(os.environ['NUMBA_CACHE_DIR'])"],
                          env=env, cwd=tmp_path, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0 and out.stdout.strip() == str(tmp_path / "mine"), out.stderr
