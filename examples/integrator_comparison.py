@@ -6,7 +6,7 @@ positions are compared with an independent reference of the same ODE, ``scipy.in
 (Radau, rtol 1e-10), not with springsim at a smaller step. Explicit methods are unstable at this
 step on this cloth; that is reported, not hidden.
 
-    python examples/integrator_comparison.py       # 12 x 12 cloth, about 7 s
+    python examples/integrator_comparison.py       # 12 x 12 cloth: ~11 s on 1 core
     python examples/integrator_comparison.py --tiny   # 4 x 4 cloth (what the tests run)
 
 Prints a table and writes ``integrator_comparison.png`` (CPU time against error) to ``--out-dir``.

@@ -6,7 +6,7 @@ from rest, pinned along one edge. Linearized implicit Euler solves one sparse sy
 picks at this size). The sparsity pattern is computed once; every step scatters the new values
 into it. Peak memory: about 2 GB.
 
-    python examples/million_springs.py             # 410 x 410, 3 steps: about 20 s, 2 GB
+    python examples/million_springs.py             # 410 x 410, 3 steps: ~15 s on 1 core, 2 GB
     python examples/million_springs.py --tiny      # 20 x 20 (what the tests run)
 
 Prints the set-up and per-step times and writes ``million_springs.png`` (the height of the cloth

@@ -5,7 +5,7 @@ five times as heavy as the whole rope. The rope's stiff axial vibrations would f
 method to steps of about 1e-4 s; TR-BDF2 (L-stable) damps them, and its error-controlled adaptive
 steps, measured on positions (``error_on="q"``), follow the swing with steps up to 0.04 s.
 
-    python examples/rope_with_weight.py            # 40 rope particles, 3 s, about 2 s
+    python examples/rope_with_weight.py            # 40 rope particles, 3 s of motion: ~4 s on 1 core
     python examples/rope_with_weight.py --tiny     # 8 particles, 0.3 s (what the tests run)
 
 Writes ``rope_with_weight.png`` (the weight's path and the rope at a few instants) to ``--out-dir``.

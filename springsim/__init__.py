@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 
 from .errors import (ConvergenceWarning, FallbackWarning, SceneError, SceneTypeError, SimulationError,
                      SimulationInterrupted, SolverError, SpringsimError, SpringsimWarning)
+from . import _accel  # noqa: F401  (sets NUMBA_CACHE_DIR to a user cache before numba is imported)
 
 __version__ = "0.1.0"
 

@@ -93,6 +93,15 @@ class Trajectory:
     def frame_count(self) -> int:
         return int(self.t.shape[0])
 
+    def __repr__(self) -> str:
+        """One line, whatever the size: frames, particles, time span, steps and failed steps (not the arrays)."""
+        t = np.asarray(self.t)
+        span = f"[{float(t[0]):g}, {float(t[-1]):g}]" if t.size else "[]"
+        particles = int(np.shape(self.q)[1]) if np.ndim(self.q) >= 2 else 0
+        failed = sum(not getattr(x, "ok", True) for x in self.stats)
+        return (f"Trajectory(frames={int(t.shape[0]) if t.ndim else 0}, particles={particles}, t={span} s, "
+                f"steps={len(self.stats)}, failed_steps={failed})")
+
     def save(self, path) -> None:
         """Write the frames to an ``.npz`` atomically (see :func:`save_npz_atomic`).
 

@@ -18,10 +18,29 @@ __all__ = ["Model", "State", "ClothGrid", "AXES"]
 AXES = ("x", "y", "z")
 
 
+def _frozen_data(a: np.ndarray) -> bool:
+    """Whether ``a`` is a read-only C-contiguous view of an immutable ``bytes`` object (made by :func:`_readonly`)."""
+    base = a
+    while isinstance(base, np.ndarray):
+        base = base.base
+    return type(base) is bytes and not a.flags.writeable and a.flags.c_contiguous
+
+
 def _readonly(a: np.ndarray) -> np.ndarray:
+    """``a`` as a C-contiguous array over a private, immutable copy of its data.
+
+    The data lives in a ``bytes`` object, so neither ``setflags(write=True)`` (numpy refuses it for an
+    array whose base is read-only) nor writing through the caller's array can change it.
+    """
+    if _frozen_data(a):
+        return a  # already private and immutable (a shallow copy of a model shares it)
     a = np.ascontiguousarray(a)
-    a.setflags(write=False)
-    return a
+    return np.frombuffer(a.tobytes(), dtype=a.dtype).reshape(a.shape)
+
+
+def _rebuild(cls, kwargs: dict):
+    """Unpickle (or copy) a :class:`Model`: through ``__init__``, so that its arrays are frozen again."""
+    return cls(**kwargs)
 
 
 class ClothGrid(NamedTuple):
@@ -36,7 +55,10 @@ class ClothGrid(NamedTuple):
 class Model:
     """A validated mass-spring system; build it with :class:`springsim.ModelBuilder`.
 
-    All arrays are read-only. Integrators never write to a model.
+    All arrays are read-only, over private copies of the data that nothing can make writable (not
+    ``setflags(write=True)``, not writing to the arrays the model was built from); pickling and
+    copying (``copy.copy``, ``copy.deepcopy``) give models that are just as immutable. Integrators
+    never write to a model.
 
     Attributes
     ----------
@@ -103,6 +125,10 @@ class Model:
             v = getattr(self, f.name)
             if isinstance(v, np.ndarray):
                 object.__setattr__(self, f.name, _readonly(v))
+
+    def __reduce__(self):
+        # The default would restore the fields without __post_init__: unpickled arrays would be writable.
+        return _rebuild, (type(self), {f.name: getattr(self, f.name) for f in fields(self)})
 
     # -- counts ---------------------------------------------------------------
     @property

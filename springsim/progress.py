@@ -1,9 +1,14 @@
 """Progress and set-up timing through the standard :mod:`logging` module.
 
 springsim logs to the logger ``"springsim"`` (and its children), which has a
-:class:`logging.NullHandler`: nothing is printed unless the application configures
+:class:`logging.NullHandler`: set-up phases are printed only when the application configures
 logging, e.g. ``logging.basicConfig(level=logging.INFO)``. The CLI does that itself
 (``-v/--verbose`` for DEBUG, ``--quiet`` for warnings only).
+
+Progress asked for with ``progress=True`` shows on its own, as tqdm's or pip's does: while
+logging is not configured (no handler on the ``springsim`` logger or, through propagation, on
+the root logger) its lines go to stderr as ``springsim: step 40/200 ...``; once an application
+configures logging they go through it instead (its handlers, levels and format decide), never both.
 
 Levels
 ------
@@ -29,10 +34,12 @@ or ``True`` for a :class:`ProgressLog`. Any progress bar library plugs in the sa
 from __future__ import annotations
 
 import logging
+import sys
 import time
 from contextlib import contextmanager
 
-__all__ = ["logger", "phase", "ProgressLog", "SLOW_PHASE_S", "as_progress", "format_seconds"]
+__all__ = ["logger", "phase", "ProgressLog", "SLOW_PHASE_S", "PROGRESS_INTERVAL_S", "as_progress", "format_seconds",
+           "logging_configured"]
 
 #: The package logger; modules log to children such as ``springsim.linsolve``.
 logger = logging.getLogger("springsim")
@@ -40,6 +47,23 @@ logger.addHandler(logging.NullHandler())
 
 #: A set-up phase that takes at least this long [s] is logged at INFO (else at DEBUG).
 SLOW_PHASE_S = 1.0
+
+#: Seconds between the progress lines of ``progress=True`` (and before the first); read at call time.
+PROGRESS_INTERVAL_S = 5.0
+
+
+def logging_configured(log: logging.Logger | None = None) -> bool:
+    """Whether records of ``log`` (default: the ``springsim`` logger) reach a handler that an application
+    configured: one other than a :class:`logging.NullHandler` on it or, through propagation, an ancestor
+    (the root logger included)."""
+    c = log or logger
+    while c is not None:
+        if any(not isinstance(h, logging.NullHandler) for h in c.handlers):
+            return True
+        if not c.propagate:
+            return False
+        c = c.parent
+    return False
 
 
 def format_seconds(s: float) -> str:
@@ -72,6 +96,9 @@ def phase(what: str, log: logging.Logger | None = None, slow: float = SLOW_PHASE
 
 class ProgressLog:
     """A progress callback that logs one line at most every ``interval`` seconds.
+
+    While logging is not configured (:func:`logging_configured` is false) the lines go to stderr
+    as ``springsim: <line>`` instead, unless ``log`` was given a level above ``level``.
 
     ``progress(done, total)`` with integers (steps) logs ``step 40/200 (20%), 12 s elapsed,
     about 48 s left``; with floats (simulated time of an adaptive run) ``t = 0.4 s of 2 s``.
@@ -106,7 +133,11 @@ class ProgressLog:
             return
         self._last = now
         self.lines += 1
-        self.log.log(self.level, "%s", self.line(done, total, now))
+        line = self.line(done, total, now)
+        if logging_configured(self.log):
+            self.log.log(self.level, "%s", line)
+        elif self.log.level <= self.level:  # NOTSET, or a level the caller set that lets the line through
+            print(f"springsim: {line}", file=sys.stderr, flush=True)
 
     def line(self, done, total, now: float | None = None) -> str:
         """The progress line for ``done`` of ``total``."""
@@ -127,7 +158,7 @@ class ProgressLog:
 def as_progress(progress):
     """The callback for a ``progress`` argument: None, a callable, or True for a :class:`ProgressLog`."""
     if progress is True:
-        return ProgressLog()
+        return ProgressLog(interval=PROGRESS_INTERVAL_S)
     if progress is None or progress is False:
         return None
     if not callable(progress):

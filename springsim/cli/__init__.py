@@ -47,6 +47,7 @@ COMMANDS: dict[str, object] = {
     "plot": "springsim.cli.pictures:plot_command",
     "render": "springsim.cli.pictures:render_command",
     "export": "springsim.cli.export:export_command",
+    "scenes": "springsim.cli.scenes:scenes_command",
 }
 
 

@@ -32,9 +32,11 @@ class _ExportCommand:
     def run(self, args) -> int:
         from ..export import export_trajectory, require_meshio
         from ..scene import load_scene
+        from ..scene.shipped import resolve_scene
         from .run import load_trajectory_for
 
         require_meshio(args.format)  # before loading anything
+        args.scene = str(resolve_scene(args.scene))
         scene = load_scene(Path(args.scene))
         traj = load_trajectory_for(args.trajectory, scene, args.scene)
         files = export_trajectory(scene.model, traj, args.out, fmt=args.format, stem=scene.name, every=args.every)

@@ -90,7 +90,9 @@ class _RenderCommand:
         if src.suffix == ".npz":
             if not args.scene_of_npz:
                 raise SpringsimError("render: a trajectory .npz needs --scene SCENE.yaml for its springs")
-            scene = load_scene(Path(args.scene_of_npz))
+            from ..scene.shipped import resolve_scene
+
+            scene = load_scene(resolve_scene(args.scene_of_npz))
             traj = load_trajectory_for(src, scene, args.scene_of_npz)
         else:
             scene, traj = _run_scene(args)

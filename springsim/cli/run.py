@@ -131,7 +131,7 @@ def configure_logging(verbose: int = 0, quiet: bool = False):
 
 
 def _add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("scene", help="scene file (YAML)")
+    p.add_argument("scene", help="scene file (YAML), or the name of a shipped scene (`springsim scenes`)")
     add_run_options(p)
     p.add_argument("--out", metavar="FILE.npz", help="write frames t (F,), q (F,N,3), qd (F,N,3) to an .npz")
     p.add_argument("--frame-every", type=int_at_least(1, MAX_STEPS), default=1, metavar="K",
@@ -145,7 +145,9 @@ def load_and_configure(args: argparse.Namespace):
     """``(scene, config)``: the scene of ``args.scene`` with the command-line overrides applied."""
     from ..progress import phase
     from ..scene import load_scene
+    from ..scene.shipped import resolve_scene
 
+    args.scene = str(resolve_scene(args.scene))  # a bare name (cloth_64) is a shipped scene
     with phase(f"loading {args.scene}"):
         scene = load_scene(Path(args.scene))  # always a path on the command line, never YAML text
     names = [f for f in SolverConfig._fields() if hasattr(args, f)]

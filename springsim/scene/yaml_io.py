@@ -76,6 +76,8 @@ _SPRING_KEYS = ("particle_ids", "stiffness", "damping", "rest_length")
 #: Accepted aliases of spring keys (canonical: the assignment's ``stiffness`` and ``damping``).
 _SPRING_ALIASES = {a: c for a, c in COEFFICIENT_ALIASES.items() if c in _SPRING_KEYS}
 _GRAV_KEYS = ("particle_ids", "G", "softening")
+#: Keys whose absence (or null) means a computed default; the builder marks that default with NaN.
+_DEFAULT_WHEN_NULL = ("rest_length", "softening")
 _PLOT_KEYS = ("particle_id", "dof", "y_range")
 _CLOTH_KEYS = tuple(p for p in inspect.signature(ModelBuilder.add_cloth_grid).parameters if p != "self")
 _BENCH_KEYS = ("n",) + tuple(p for p in inspect.signature(benchmark_cloth_grid).parameters if p != "n")
@@ -86,12 +88,18 @@ _SafeBase = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
 
 class _Loader(_SafeBase):
-    """``yaml.SafeLoader`` that reads ``1e4`` and ``1.0e4`` as floats and rejects duplicate keys.
+    """``yaml.SafeLoader`` whose numbers follow the YAML 1.2 core schema, and that rejects duplicate keys.
 
-    PyYAML follows YAML 1.1, where an exponent needs a sign and a dot (``1.0e+4``), so
-    ``ke: 1e4`` would silently be the string ``"1e4"``. A mapping that gives a key twice
-    (the second would silently win) is an error; keys brought in by a merge (``<<: *base``)
-    may be overridden, as YAML specifies.
+    PyYAML follows YAML 1.1, where an exponent needs a sign and a dot (``1.0e+4``), so ``ke: 1e4``
+    would silently be the string ``"1e4"``; a leading zero makes an integer octal (``steps: 010``
+    would run 8 steps, ``particle_ids: [000, 010]`` would join particles 0 and 8); and colons make
+    base-60 numbers (``steps: 1:30`` would run 90). Here, as in YAML 1.2: ``010`` is the integer 10,
+    ``0o10`` is octal, ``0x10`` hexadecimal, ``1e4`` and ``1.0e4`` are floats, and ``1:30`` (or
+    ``0b101``) is a string, which every number field refuses with its path named. Underscores
+    between digits (``1_000_000``) group digits, as PyYAML has always read them.
+
+    A mapping that gives a key twice (the second would silently win) is an error; keys brought in
+    by a merge (``<<: *base``) may be overridden, as YAML specifies.
     """
 
     def construct_mapping(self, node, deep=False):
@@ -108,10 +116,35 @@ class _Loader(_SafeBase):
         return super().construct_mapping(node, deep)
 
 
-_Loader.add_implicit_resolver(
-    "tag:yaml.org,2002:float",
-    re.compile(r"^[-+]?(?:[0-9][0-9_]*\.[0-9_]*|\.[0-9_]+|[0-9][0-9_]*)[eE][-+]?[0-9]+$"),
-    list("-+0123456789."))
+_INT_TAG, _FLOAT_TAG = "tag:yaml.org,2002:int", "tag:yaml.org,2002:float"
+# YAML 1.2 core: decimal (leading zeros allowed, still decimal), 0o octal, 0x hexadecimal.
+_INT_RE = re.compile(r"^(?:[-+]?[0-9][0-9_]*|[-+]?0o[0-7_]+|[-+]?0x[0-9a-fA-F_]+)$")
+# YAML 1.2 core: a dot or an exponent (with or without sign), .inf and .nan; no base-60 forms.
+_FLOAT_RE = re.compile(r"^(?:[-+]?(?:[0-9][0-9_]*\.[0-9_]*|\.[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)?"
+                       r"|[-+]?[0-9][0-9_]*[eE][-+]?[0-9]+"
+                       r"|[-+]?\.(?:inf|Inf|INF)|\.(?:nan|NaN|NAN))$")
+# PyYAML's YAML 1.1 number resolvers out, the 1.2 ones in (integers tried first).
+_Loader.yaml_implicit_resolvers = {
+    first: [(tag, rx) for tag, rx in resolvers if tag not in (_INT_TAG, _FLOAT_TAG)]
+    for first, resolvers in _SafeBase.yaml_implicit_resolvers.items()}
+_Loader.add_implicit_resolver(_INT_TAG, _INT_RE, list("-+0123456789"))
+_Loader.add_implicit_resolver(_FLOAT_TAG, _FLOAT_RE, list("-+0123456789."))
+
+
+def _construct_int(loader, node):
+    """An integer as YAML 1.2 reads it (also for an explicit ``!!int``): ``010`` is ten, ``0o10`` eight."""
+    text = loader.construct_scalar(node)
+    digits = str(text).replace("_", "")
+    sign, body = (-1, digits[1:]) if digits[:1] == "-" else (1, digits.lstrip("+"))
+    base = {"0o": 8, "0x": 16}.get(body[:2].lower(), 10)
+    try:
+        return sign * int(body[2:] if base != 10 else body, base)
+    except ValueError:
+        raise yaml.constructor.ConstructorError(None, None, f"not an integer: {_show(text)}",
+                                                node.start_mark) from None
+
+
+_Loader.add_constructor(_INT_TAG, _construct_int)
 
 
 # -- the result ---------------------------------------------------------------------------
@@ -329,8 +362,12 @@ def _parse_pairs(group: str, items: list, n: int, keys: tuple[str, ...], value_k
         for key, col in cols.items():
             if key in s:
                 x = s[key]
-                if x is None and key in ("rest_length", "softening"):  # null: the default
-                    continue
+                if key in _DEFAULT_WHEN_NULL:
+                    if x is None:  # null: the default
+                        continue
+                    if x != x:  # NaN would silently mean the default too (the builder's marker for it)
+                        raise SceneError(f"{group}[{k}].{key}", "must be finite (leave it out or give null "
+                                                                 "for the default), got nan")
                 if not _is_num(x):
                     _number(f"{group}[{k}].{key}", x)
                 col[k] = x

@@ -168,12 +168,12 @@ def test_command_registry(capsys):
 def test_python_dash_m_entry_point(tmp_path):
     """``python -m springsim run`` works as a real process: exit 0 with a summary, exit 2 on a bad scene."""
     ok = subprocess.run([sys.executable, "-m", "springsim", "run", SPRING, "--steps", "3"],
-                        capture_output=True, text=True, timeout=120)
+                        capture_output=True, text=True, timeout=120, cwd=tmp_path)  # not the checkout's springsim/
     assert ok.returncode == 0 and "particles:" in ok.stdout, ok.stderr
     bad = tmp_path / "bad.yaml"
     bad.write_text("solver: [")
     err = subprocess.run([sys.executable, "-m", "springsim", "run", str(bad)], capture_output=True, text=True,
-                         timeout=120)
+                         timeout=120, cwd=tmp_path)
     assert err.returncode == 2 and err.stderr.count("\n") == 1 and "Traceback" not in err.stderr
 
 

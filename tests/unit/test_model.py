@@ -24,6 +24,49 @@ def test_model_arrays_are_read_only(name):
         a[...] = 0
 
 
+def _assert_immutable(model, original):
+    """Every array of ``model`` refuses writes and ``setflags(write=True)``, and equals ``original``'s."""
+    for name in ARRAYS + ("gravitational_softening",):
+        a = getattr(model, name)
+        assert not a.flags.writeable, name
+        with pytest.raises(ValueError):
+            a.setflags(write=True)
+        with pytest.raises(ValueError):
+            a[...] = 0
+        np.testing.assert_array_equal(a, getattr(original, name))
+
+
+def test_model_stays_immutable_through_pickle_and_copies():
+    """Pickling, copy.copy and copy.deepcopy give models whose arrays stay unwritable (no setflags(write=True))."""
+    import copy
+    import pickle
+
+    model = random_scene(np.random.default_rng(1103))
+    _assert_immutable(model, model)
+    for clone in (pickle.loads(pickle.dumps(model)), copy.deepcopy(model), copy.copy(model)):
+        assert type(clone) is type(model) and clone.fingerprint() == model.fingerprint()
+        assert clone.metadata == model.metadata and clone.cloth_grids == model.cloth_grids
+        _assert_immutable(clone, model)
+
+
+def test_model_does_not_share_the_callers_arrays():
+    """Writing to the arrays a Model was built from, or to any array's base, cannot change the model."""
+    import dataclasses
+
+    model = random_scene(np.random.default_rng(1104))
+    kw = {f.name: getattr(model, f.name) for f in dataclasses.fields(model)}
+    mine = {name: np.array(kw[name]) for name in ARRAYS}
+    rebuilt = type(model)(**{**kw, **mine})
+    for name in ARRAYS:
+        mine[name][...] = 0
+        base = getattr(rebuilt, name).base
+        while isinstance(base, np.ndarray):
+            with pytest.raises(ValueError):
+                base.setflags(write=True)
+            base = base.base
+    _assert_immutable(rebuilt, model)
+
+
 def test_model_is_frozen():
     """Model attributes cannot be rebound."""
     model = random_scene(np.random.default_rng(1102))

@@ -7,7 +7,8 @@ from helpers import PENDULUM_YAML
 
 from springsim import cli, make_integrator, simulate, simulate_adaptive
 from springsim.builder import ModelBuilder
-from springsim.progress import ProgressLog, as_progress, format_seconds, phase
+from springsim import progress as progress_module
+from springsim.progress import ProgressLog, as_progress, format_seconds, logging_configured, phase
 
 SCENE = PENDULUM_YAML
 
@@ -68,7 +69,7 @@ def test_as_progress():
 
 def test_simulate_progress_true_logs_through_logging(caplog, monkeypatch):
     """progress=True in simulate and simulate_adaptive logs ProgressLog lines to the springsim logger."""
-    monkeypatch.setattr(ProgressLog.__init__, "__defaults__", (0.0, None, logging.INFO))
+    monkeypatch.setattr(progress_module, "PROGRESS_INTERVAL_S", 0.0)
     m = _pendulum()
     with caplog.at_level(logging.INFO, logger="springsim"):
         simulate(m, make_integrator("symplectic_euler", m), 0.01, 3, progress=True)
@@ -76,6 +77,73 @@ def test_simulate_progress_true_logs_through_logging(caplog, monkeypatch):
     msgs = [r.getMessage() for r in caplog.records]
     assert any(s.startswith("step 3/3 (100%)") for s in msgs)
     assert any(s.startswith("t = 0.05 s of 0.05 s (100%)") for s in msgs)
+
+
+@pytest.fixture
+def set_level():
+    """``set_level(logger, level)`` through ``setLevel`` (which clears logging's caches), undone after the test."""
+    saved = []
+
+    def set_level(log, level):
+        saved.append((log, log.level))
+        log.setLevel(level)
+
+    yield set_level
+    for log, level in reversed(saved):
+        log.setLevel(level)
+
+
+def _unconfigure_logging(monkeypatch, set_level):
+    """Logging as a script that never configures it has it: no handlers on the root logger (pytest's removed)."""
+    monkeypatch.setattr(logging.getLogger(), "handlers", [])
+    set_level(logging.getLogger(), logging.WARNING)
+    set_level(logging.getLogger("springsim"), logging.NOTSET)
+    monkeypatch.setattr(progress_module, "PROGRESS_INTERVAL_S", 0.0)
+
+
+def _run_with_progress():
+    m = _pendulum()
+    simulate(m, make_integrator("symplectic_euler", m), 0.01, 3, progress=True)
+    simulate_adaptive(m, "tr_bdf2", 0.05, progress=True)
+
+
+def test_progress_true_prints_to_stderr_without_logging_configuration(capsys, monkeypatch, set_level):
+    """progress=True shows its lines on stderr by itself when the application has not configured logging."""
+    _unconfigure_logging(monkeypatch, set_level)
+    assert not logging_configured()
+    _run_with_progress()
+    out, err = capsys.readouterr()
+    assert out == ""
+    assert "springsim: step 3/3 (100%)" in err and "springsim: t = 0.05 s of 0.05 s (100%)" in err
+
+
+def test_progress_true_uses_the_springsim_loggers_configuration(capsys, monkeypatch, set_level):
+    """A handler on the springsim logger receives the lines, and nothing else is printed to stderr."""
+    _unconfigure_logging(monkeypatch, set_level)
+    records = []
+    handler = logging.Handler(logging.INFO)
+    handler.emit = records.append
+    log = logging.getLogger("springsim")
+    monkeypatch.setattr(log, "handlers", log.handlers + [handler])
+    set_level(log, logging.INFO)
+    _run_with_progress()
+    assert capsys.readouterr() == ("", "")
+    assert any(r.getMessage().startswith("step 3/3 (100%)") for r in records)
+
+
+def test_progress_true_uses_the_root_loggers_configuration(capsys, monkeypatch, set_level):
+    """With only the root logger configured (at WARNING, as by ``logging.basicConfig()``), progress is not printed."""
+    _unconfigure_logging(monkeypatch, set_level)
+    records = []
+    handler = logging.Handler(logging.NOTSET)
+    handler.emit = records.append
+    monkeypatch.setattr(logging.getLogger(), "handlers", [handler])
+    _run_with_progress()
+    assert capsys.readouterr() == ("", "") and records == []
+    set_level(logging.getLogger(), logging.INFO)  # the application asks for INFO: it gets it
+    _run_with_progress()
+    assert capsys.readouterr() == ("", "")
+    assert any(r.getMessage().startswith("step 3/3 (100%)") for r in records)
 
 
 def test_cli_verbose_logs_setup_phases(capsys, tmp_path):

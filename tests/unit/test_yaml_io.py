@@ -83,6 +83,45 @@ def test_exponent_floats_without_sign():
     assert "must be a number" in _err(TWO + "springs:\n  - {particle_ids: [0, 1], stiffness: '1e4'}\n")
 
 
+def test_integers_follow_yaml_1_2():
+    """Leading zeros are decimal (``010`` is 10, not octal 8), ``0o``/``0x`` prefix octal/hex, and ``1:30`` is no number."""
+    nine = HEAD.replace("}", ", steps: 010}") + "particles:\n" + "  - {pos: [0, 0, 0], mass: 1}\n" * 11
+    s = load_scene(nine + "springs:\n  - {particle_ids: [000, 010], stiffness: 1}\n")
+    assert s.config.steps == 10
+    np.testing.assert_array_equal(s.model.spring_indices, [[0, 10]])
+    assert load_scene(HEAD.replace("}", ", steps: 0o10}") + "particles: [{pos: [0, 0, 0], mass: 1}]\n").config.steps == 8
+    assert load_scene(HEAD.replace("}", ", steps: 0x10}") + "particles: [{pos: [0, 0, 0], mass: 1}]\n").config.steps == 16
+    assert load_scene(HEAD.replace("}", ", steps: 1_000}") + "particles: [{pos: [0, 0, 0], mass: 1}]\n").config.steps == 1000
+    msg = _err(HEAD.replace("}", ", steps: 1:30}") + "particles: [{pos: [0, 0, 0], mass: 1}]\n")
+    assert msg.startswith("solver.steps: must be an integer") and "'1:30'" in msg
+    assert "springs[0].particle_ids: particle ids must be integers" in _err(
+        TWO + "springs:\n  - {particle_ids: [0, 0:01], stiffness: 1}\n")
+    assert "springs[0].stiffness: must be a number" in _err(
+        TWO + "springs:\n  - {particle_ids: [0, 1], stiffness: 1:30.5}\n")
+    assert load_scene(TWO + "springs:\n  - {particle_ids: [0, 1], stiffness: 007.5}\n").model.spring_stiffness[0] == 7.5
+
+
+def test_loader_stays_safe_with_yaml_1_2_numbers():
+    """The 1.2 number resolvers keep the loader safe: python tags are refused, ``!!int`` follows the same rules."""
+    assert "YAML error" in _err(HEAD + "particles: !!python/object/apply:os.getcwd []\n")
+    assert load_scene(HEAD.replace("}", ", steps: !!int 012}") + "particles: [{pos: [0, 0, 0], mass: 1}]\n"
+                      ).config.steps == 12
+    assert "not an integer" in _err(HEAD.replace("}", ", steps: !!int '1:30'}") + "particles: [{pos: [0, 0, 0], mass: 1}]\n")
+
+
+def test_nan_rest_length_and_softening_are_refused():
+    """``.nan`` for ``rest_length`` or ``softening`` is an error naming the item, while absent or null means the default."""
+    springs = "springs:\n" + "  - {particle_ids: [0, 1], stiffness: 1}\n" * 3
+    assert _err(TWO + springs + "  - {particle_ids: [0, 1], stiffness: 1, rest_length: .nan}\n").startswith(
+        "springs[3].rest_length: must be finite")
+    msg = _err(TWO + "gravitational:\n  - {particle_ids: [0, 1], G: 1, softening: .NaN}\n")
+    assert msg.startswith("gravitational[0].softening: must be finite") and msg.endswith("got nan")
+    s = load_scene(TWO + "springs:\n  - {particle_ids: [0, 1], stiffness: 1, rest_length: null}\n"
+                   "gravitational:\n  - {particle_ids: [0, 1], G: 1}\n")
+    assert s.model.spring_rest_length[0] == 1.0
+    assert np.isfinite(s.model.gravitational_softening[0]) and s.model.gravitational_softening[0] > 0
+
+
 def test_duration_sets_steps():
     """``duration`` becomes a step count, rounded up; steps and duration exclude each other."""
     s = load_scene("solver: {type: midpoint, timestep: 0.03, duration: 0.1}\nparticles: [{pos: [0,0,0], mass: 1}]")
