@@ -163,8 +163,9 @@ class ForceTerm(ABC):
         which the term may keep its large temporaries between calls (:func:`scratch`); the
         returned blocks may then live in it, valid until the next call with the same dict.
         The assembler passes one per term, so repeated assemblies allocate nothing large
-        (fresh multi-MB arrays cost page faults on every call: BENCHMARKS.md, section 5). Overrides must
-        accept ``work`` (a term with small temporaries may ignore it).
+        (fresh multi-MB arrays cost page faults on every call: "Assembly and page faults" in
+        benchmarks/notes/2026-12-05-linear-solvers-and-amg.md). Overrides must accept ``work``
+        (a term with small temporaries may ignore it).
         """
         return None, None
 
@@ -279,7 +280,7 @@ class PairIncidence:
     ``D @ x`` gives the pair differences ``x_i - x_j`` (exactly: each row adds two terms), and
     ``D.T @ f`` accumulates ``+f`` on the first particle and ``-f`` on the second. Both are
     one sparse product over an (N, 3) or (P, 3) array, several times faster than fancy-index
-    gathers and ``bincount`` scatters (BENCHMARKS.md, "Explicit path"). Built on first use for
+    gathers and ``bincount`` scatters (BENCHMARKS.md#explicit-speed). Built on first use for
     the particle count of the arrays it is given.
     """
 

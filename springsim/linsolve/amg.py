@@ -39,7 +39,8 @@ implicit system's 3x3 block structure:
   change the matrix by ~1e-3 relative (and a hierarchy serves them), consecutive steps of a falling
   cloth by 3-10e-2 (and it does not).
 
-The measurements behind these choices are in BENCHMARKS.md, section 5.
+The measurements behind these choices are in benchmarks/notes/2026-12-05-linear-solvers-and-amg.md
+("AMG design choices"); the current step times in BENCHMARKS.md#cloth-grid.
 """
 
 from __future__ import annotations

@@ -3,7 +3,8 @@
 The implicit system's pattern is structurally symmetric, so SuperLU orders it by
 minimum degree on ``A^T + A`` (``MMD_AT_PLUS_A``) in symmetric mode, taking diagonal
 pivots (``diag_pivot_thresh = 0``): far less fill than the default COLAMD ordering with
-partial pivoting on these matrices (BENCHMARKS.md, section 5). Diagonal pivoting is not
+partial pivoting on these matrices (SuperLU Users' Guide, Demmel, Gilbert and Li 1999; the factor times:
+BENCHMARKS.md#sparse-vs-dense). Diagonal pivoting is not
 backward stable for every matrix (an indefinite ``exact``-mode Jacobian can have tiny
 pivots), so every solution is checked:
 
