@@ -7,7 +7,7 @@ motion the total energy ``E = T + V`` never exceeds its initial value ``E0``.
 Blow-up detection without NaN
 -----------------------------
 An unstable integrator can grow the state geometrically for many steps before anything
-overflows (|q| of 1e217 m stays finite). :class:`EnergyBound` checks a cheap consequence
+overflows (``|q|`` of 1e217 m stays finite). :class:`EnergyBound` checks a cheap consequence
 of ``E <= E0`` after every step. Spring potentials are >= 0 and a softened gravitational
 pair's potential is >= ``-3 c / (2 eps)`` (its value at zero distance), so::
 
