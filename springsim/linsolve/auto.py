@@ -69,10 +69,32 @@ class LinearSolverAuto(LinearSolver):
             solver.rtol = value
 
     def needs_spd_for(self, dofs: int) -> bool:
+        """Whether ``auto`` asks for the ``spd`` Jacobian: only above ``direct_max_dofs``, where it uses AMG-CG.
+
+        Parameters
+        ----------
+        dofs : int
+            Number of unknowns.
+
+        Returns
+        -------
+        bool
+        """
         return dofs > self.direct_max_dofs
 
     def choose(self, A) -> str:
-        """Name of the solver used for ``A``."""
+        """Name of the solver used for ``A``.
+
+        Parameters
+        ----------
+        A : SystemMatrix
+            The matrix.
+
+        Returns
+        -------
+        str
+            ``"direct"``, ``"amg-cg"`` or ``"amg-gmres"``.
+        """
         return self._choose(A)[0]
 
     def _choose(self, A) -> tuple[str, str]:

@@ -48,6 +48,32 @@ def refine(A, solve, b: np.ndarray, x: np.ndarray, *, A_norm: float, tol: float,
 
     Stops when the normwise backward error is ``<= tol``, after ``steps`` corrections, or
     when a correction does not reduce it. Returns ``(x, eta, corrections)``.
+
+    Parameters
+    ----------
+    A : SystemMatrix, scipy.sparse matrix or ndarray, shape (n, n)
+        The matrix.
+    b : ndarray, shape (n,)
+        Right-hand side.
+    solve : callable
+        Approximate inverse ``r -> (LU)^-1 r``.
+    x : ndarray, shape (n,)
+        Starting solution.
+    A_norm : float
+        ``|A|_inf``.
+    tol : float
+        Target normwise backward error.
+    steps : int
+        Largest number of corrections.
+
+    Returns
+    -------
+    x : ndarray, shape (n,)
+        The refined solution.
+    eta : float
+        Its backward error.
+    corrections : int
+        Corrections applied.
     """
     eta = backward_error(A, x, b, A_norm)
     done = 0
