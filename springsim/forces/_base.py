@@ -247,7 +247,15 @@ class ForceTerm(ABC):
 
     def linearize_at(self, q: np.ndarray, work: dict) -> None:
         """Make ``q`` the previous linearisation of the ``mixed`` Jacobian mode in ``work`` (the term's workspace,
-        :meth:`eval_jacobians`); terms without such a state ignore it."""
+        :meth:`eval_jacobians`); terms without such a state ignore it.
+
+        Parameters
+        ----------
+        q : ndarray, shape (N, 3)
+            Positions [m] of the linearisation.
+        work : dict
+            The term's workspace.
+        """
 
     def eval_force_discrete(self, q0: np.ndarray, q1: np.ndarray, qd: np.ndarray, f_out: np.ndarray) -> None:
         """Accumulate this term's force over the step from ``q0`` to ``q1`` into ``f_out`` (N, 3).

@@ -185,7 +185,20 @@ class ForceSpring(ForceTerm):
         return (self._kd_damped * np.einsum("ij,ij->i", n, v))[:, None] * n
 
     def dissipation(self, geometry, qd):
-        """``1/2 sum b (n . v)^2`` over the damped springs, ``n`` from ``geometry``."""
+        """``1/2 sum b (n . v)^2`` over the damped springs, ``n`` from ``geometry``.
+
+        Parameters
+        ----------
+        geometry : ndarray, shape (N, 3)
+            Positions [m] that give the spring directions.
+        qd : ndarray, shape (N, 3)
+            Velocities [m/s].
+
+        Returns
+        -------
+        float
+            Dissipation function [W].
+        """
         if not self.damped.size:
             return 0.0
         n = self._damped_directions(geometry)
