@@ -95,7 +95,7 @@ def reference_final(case: Case, *, method: str = "auto", rtol: float = 1e-10, ca
 
     ``method="auto"`` uses Radau (implicit, sparse Jacobian) up to 600 DOFs and DOP853
     above (the benchmark cloths are only mildly stiff; the two agree to ~1e-14 m on the
-    8 x 8 cloth, see BENCHMARKS.md). Results are cached in ``benchmarks/results/ref/``.
+    8 x 8 cloth, see benchmarks/notes/2026-12-05-speed-vs-error.md). Results are cached in ``benchmarks/results/ref/``.
 
     Returns
     -------

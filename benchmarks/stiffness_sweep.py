@@ -13,7 +13,7 @@ comparison with the target means nothing there. Writes ``results/stiffness_sweep
 where the method did not reach the target). The frame-cost runs of every ``(n, ke)`` are kept in
 ``results/stiffness_sweep/ke<ke>/`` and their references cached as usual. ``--merge`` joins the rows of
 earlier sweeps (their ``stiffness_sweep.csv``, e.g. ``docs/stiffness_sweep.csv``, the data of the plot in
-BENCHMARKS.md) with this run's, which replace those of the same ``(n, ke, method, force_kernels)``, so that
+BENCHMARKS.md#stiffness-sweep) with this run's, which replace those of the same ``(n, ke, method, force_kernels)``, so that
 sizes run apart end up in one table and one plot. ``--force-kernels`` is frame-cost's (default ``auto``:
 the compiled spring force pass when numba is installed); each row records what its forces ran on, and
 rows with compiled forces are their own lines in the plot ("(compiled forces)").

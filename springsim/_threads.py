@@ -3,7 +3,7 @@
 springsim's dense kernels are small: 3x3 block inverses, the AMG coarse-level
 pseudo-inverse (a few hundred unknowns), the dense reference solver on small scenes.
 Multithreaded OpenBLAS gains nothing on them and, when the cores are busy, its
-spinning worker threads slow them down several times (BENCHMARKS.md, "BLAS threads").
+spinning worker threads slow them down several times (BENCHMARKS.md#blas-threads).
 Sparse kernels (scipy, pyamg, SuperLU) are single-threaded anyway.
 
 So every linear solve runs inside :func:`single_blas_thread`, which limits the BLAS

@@ -22,6 +22,20 @@ def stiffness_matrix(assembler, q: np.ndarray, qd: np.ndarray):
 
     Assembles ``A = M - 1 * dF/dq`` with the model's :class:`~springsim.assembly.SystemAssembler`
     and removes ``M`` from the diagonal blocks.
+
+    Parameters
+    ----------
+    assembler : SystemAssembler
+        The model's assembler.
+    q, qd : ndarray, shape (N, 3)
+        Positions [m] and velocities [m/s] at which the Jacobian is taken.
+
+    Returns
+    -------
+    K : scipy.sparse.bsr_matrix, shape (3F, 3F)
+        Stiffness [N/m] over the F free particles.
+    m : ndarray, shape (3F,)
+        Mass of each free DOF [kg].
     """
     A = assembler.assemble(q, qd, 1.0, 0.0, "exact")
     K = A.bsr.copy()
@@ -39,6 +53,21 @@ def max_frequency(assembler, q: np.ndarray, qd: np.ndarray | None = None, *, max
     by less than ``tol`` (relative) over the last 10 steps, after at least 20. The Ritz value
     converges from below; the Gershgorin bound ``max_i sum_j |K_ij| / m_i`` (from above) is returned
     alongside.
+
+    Parameters
+    ----------
+    assembler : SystemAssembler
+        The model's assembler.
+    q : ndarray, shape (N, 3)
+        Positions [m].
+    qd : ndarray, shape (N, 3), optional
+        Velocities [m/s] (they enter through damping); default at rest.
+    max_steps : int
+        Largest number of Lanczos steps.
+    tol : float
+        Relative change of the top Ritz value over 10 steps that stops the iteration.
+    seed : int
+        Seed of the random start vector.
 
     Returns
     -------
@@ -83,7 +112,20 @@ def max_frequency(assembler, q: np.ndarray, qd: np.ndarray | None = None, *, max
 
 
 def explicit_substeps(omega: float, frame_dt: float) -> int:
-    """Substeps per frame for ``h = frame_dt / S < 2 / omega``: ``S = ceil(frame_dt omega / 2)`` (at least 1)."""
+    """Substeps per frame for ``h = frame_dt / S < 2 / omega``: ``S = ceil(frame_dt omega / 2)`` (at least 1).
+
+    Parameters
+    ----------
+    omega : float
+        Largest angular frequency [rad/s] (:func:`max_frequency`).
+    frame_dt : float
+        Frame length [s].
+
+    Returns
+    -------
+    int
+        Substeps per frame, >= 1.
+    """
     if not omega > 0:
         return 1
     return max(1, math.ceil(frame_dt * omega / 2.0 * (1.0 + 1e-12)))

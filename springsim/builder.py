@@ -45,6 +45,18 @@ def default_softening(G, m_i, m_j) -> np.ndarray:
     mass of the pair moves right. It depends only on the pair's masses and ``G``, not on the
     step. For ``G`` = 1 and 1 kg masses it is 6.0 mm; give ``softening`` explicitly to resolve
     closer encounters (with smaller steps).
+
+    Parameters
+    ----------
+    G : float or ndarray
+        Gravitational constant of each pair [N m^2/kg^2], scalar or shape (P,).
+    m_i, m_j : float or ndarray
+        Masses of the pair's two particles [kg], scalar or shape (P,).
+
+    Returns
+    -------
+    ndarray
+        Softening length [m], shape of the broadcast inputs.
     """
     u = np.finfo(np.float64).eps
     scale = u * SOFTENING_TIME**2 / SOFTENING_PRECISION
@@ -57,6 +69,23 @@ def unalias(path: str, given: dict) -> dict:
     Returns canonical name -> ``(value, spelling)``, the spelling being the key the value came under
     (for error paths); canonical names of ``given`` without a given value map to ``(None, name)``.
     Raises a SceneError at ``path`` when a coefficient is given under both spellings.
+
+    Parameters
+    ----------
+    path : str
+        Item path for error messages (``"springs"``, ``"cloth[2]"``).
+    given : dict
+        Coefficient name (canonical or alias) -> value, None where not given.
+
+    Returns
+    -------
+    dict
+        Canonical name -> ``(value, spelling)``.
+
+    Raises
+    ------
+    SceneError
+        A coefficient given under both its name and its alias.
     """
     out = {}
     for name, value in given.items():
@@ -227,6 +256,31 @@ class ModelBuilder:
 
         ``pos`` has shape (n, 3); ``vel`` (n, 3) or None; ``mass``, ``radius``,
         ``drag`` and ``fixed`` are scalars or arrays of shape (n,).
+
+        Parameters
+        ----------
+        pos : array_like, shape (n, 3)
+            Initial positions [m].
+        vel : array_like, shape (n, 3), optional
+            Initial velocities [m/s]; None: at rest.
+        mass : float or array_like, shape (n,)
+            Particle masses [kg], > 0 (fixed particles may have any positive mass).
+        radius : float or array_like, shape (n,)
+            Radius [m] for drawing and scene files; NaN: none.
+        drag : float or array_like, shape (n,)
+            Linear drag coefficient [N s/m] (force ``-drag * qd``), >= 0.
+        fixed : bool or array_like, shape (n,)
+            Particles held at their initial position.
+
+        Returns
+        -------
+        range
+            Indices of the new particles.
+
+        Raises
+        ------
+        SceneTypeError, SceneError
+            Arrays of the wrong shape or type, or values out of range (naming the item, ``particles.mass``).
         """
         q = _as_rows("particles.pos", pos)
         n = q.shape[0]
@@ -268,6 +322,29 @@ class ModelBuilder:
 
         ``stiffness`` is required, ``damping`` defaults to 0; ``ke`` and ``kd`` are their aliases. A NaN
         (or ``None``) rest length means "the initial distance".
+
+        Parameters
+        ----------
+        indices : array_like of int, shape (n, 2)
+            Particle index pairs ``(i, j)``, ``i != j``.
+        stiffness : float or array_like, shape (n,)
+            Stiffness [N/m], >= 0; required (``ke`` is its alias).
+        damping : float or array_like, shape (n,), optional
+            Damping along the spring direction [N s/m], >= 0; default 0 (``kd`` is its alias).
+        rest_length : float or array_like, shape (n,), optional
+            Rest lengths l0 [m]; NaN or None: the distance at :meth:`finalize`.
+        ke, kd : float or array_like, optional
+            Aliases of ``stiffness`` and ``damping`` (not both spellings of one).
+
+        Returns
+        -------
+        range
+            Indices of the new springs.
+
+        Raises
+        ------
+        SceneTypeError, SceneError
+            A missing stiffness, both spellings of a coefficient, or arrays of the wrong shape or type.
         """
         c = unalias("springs", {"stiffness": stiffness, "ke": ke, "damping": damping, "kd": kd})
         stiffness, damping = c["stiffness"][0], c["damping"][0]
@@ -304,6 +381,25 @@ class ModelBuilder:
         """Add gravitational pairs in bulk: ``indices`` (n, 2); ``G``, ``softening`` scalars or (n,).
 
         A NaN (or ``None``) softening means :func:`default_softening`.
+
+        Parameters
+        ----------
+        indices : array_like of int, shape (n, 2)
+            Particle index pairs ``(i, j)``, ``i != j``.
+        G : float or array_like, shape (n,)
+            Gravitational constant of each pair [N m^2/kg^2], >= 0.
+        softening : float or array_like, shape (n,), optional
+            Softening lengths [m]; NaN or None: :func:`default_softening` of the pair.
+
+        Returns
+        -------
+        range
+            Indices of the new pairs.
+
+        Raises
+        ------
+        SceneTypeError, SceneError
+            Arrays of the wrong shape or type, or values out of range.
         """
         ij = _as_pairs("gravitational.particle_ids", indices)
         n = ij.shape[0]

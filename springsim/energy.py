@@ -7,7 +7,7 @@ motion the total energy ``E = T + V`` never exceeds its initial value ``E0``.
 Blow-up detection without NaN
 -----------------------------
 An unstable integrator can grow the state geometrically for many steps before anything
-overflows (|q| of 1e217 m stays finite). :class:`EnergyBound` checks a cheap consequence
+overflows (``|q|`` of 1e217 m stays finite). :class:`EnergyBound` checks a cheap consequence
 of ``E <= E0`` after every step. Spring potentials are >= 0 and a softened gravitational
 pair's potential is >= ``-3 c / (2 eps)`` (its value at zero distance), so::
 
@@ -30,7 +30,20 @@ __all__ = ["kinetic_energy", "potential_energy", "total_energy", "EnergyBound"]
 
 
 def kinetic_energy(model, qd: np.ndarray) -> np.ndarray | float:
-    """``T = sum_i m_i |qd_i|^2 / 2`` [J] of one state (N, 3) or of frames (F, N, 3)."""
+    """``T = sum_i m_i |qd_i|^2 / 2`` [J] of one state (N, 3) or of frames (F, N, 3).
+
+    Parameters
+    ----------
+    model : Model
+        Supplies the particle masses [kg], shape (N,).
+    qd : ndarray, shape (N, 3) or (F, N, 3)
+        Velocities [m/s] of one state or of F frames.
+
+    Returns
+    -------
+    float or ndarray, shape (F,)
+        Kinetic energy [J].
+    """
     qd = np.asarray(qd, dtype=np.float64)
     return 0.5 * np.einsum("i,...ij,...ij->...", model.particle_mass, qd, qd)
 
@@ -39,6 +52,20 @@ def potential_energy(model, q: np.ndarray, terms=None) -> np.ndarray | float:
     """Sum of every force term's potential [J] at one state (N, 3) or at frames (F, N, 3).
 
     ``terms`` defaults to all the model's terms, pairs between fixed particles included.
+
+    Parameters
+    ----------
+    model : Model
+        The model whose force terms are summed.
+    q : ndarray, shape (N, 3) or (F, N, 3)
+        Positions [m] of one state or of F frames.
+    terms : list of ForceTerm, optional
+        Terms to sum; default: :func:`springsim.forces.make_force_terms` of ``model`` with ``skip_fixed=False``.
+
+    Returns
+    -------
+    float or ndarray, shape (F,)
+        Potential energy [J].
     """
     terms = make_force_terms(model, skip_fixed=False) if terms is None else terms
     q = np.asarray(q, dtype=np.float64)
@@ -48,7 +75,22 @@ def potential_energy(model, q: np.ndarray, terms=None) -> np.ndarray | float:
 
 
 def total_energy(model, q: np.ndarray, qd: np.ndarray, terms=None) -> np.ndarray | float:
-    """``T + V`` [J] of one state or of frames (see :func:`kinetic_energy`, :func:`potential_energy`)."""
+    """``T + V`` [J] of one state or of frames (see :func:`kinetic_energy`, :func:`potential_energy`).
+
+    Parameters
+    ----------
+    model : Model
+        The model.
+    q, qd : ndarray, shape (N, 3) or (F, N, 3)
+        Positions [m] and velocities [m/s] of one state or of F frames.
+    terms : list of ForceTerm, optional
+        As for :func:`potential_energy`.
+
+    Returns
+    -------
+    float or ndarray, shape (F,)
+        Total mechanical energy [J].
+    """
     return kinetic_energy(model, qd) + potential_energy(model, q, terms)
 
 
@@ -97,7 +139,18 @@ class EnergyBound:
                 self._offset = float(sum(t.potential_energy(np.where(fixed, q0, 0.0)) for t in full))
 
     def work(self, q: np.ndarray, qd: np.ndarray) -> float:
-        """``W = T + V_gravity`` [J] of a state (the state arrays of ``system`` when one was given)."""
+        """``W = T + V_gravity`` [J] of a state (the state arrays of ``system`` when one was given).
+
+        Parameters
+        ----------
+        q, qd : ndarray, shape (N, 3)
+            Positions [m] and velocities [m/s] (of the system's particles when a system was given).
+
+        Returns
+        -------
+        float
+            ``W`` [J]: the kinetic energy plus the potentials without a lower bound (uniform gravity).
+        """
         # T = |sqrt(m) qd|^2 / 2: one elementwise product into a buffer and one dot, several times faster than a
         # three-operand einsum on large states (it runs after every step)
         v = np.multiply(qd, self._sqrt_mass, out=self._scaled).reshape(-1)
@@ -106,7 +159,18 @@ class EnergyBound:
         return w if self._system is None else self._system.sum(w) + self._offset
 
     def exceeded(self, q: np.ndarray, qd: np.ndarray) -> float | None:
-        """``W`` when it is above the limit (or not a number: the sums overflowed), else None."""
+        """``W`` when it is above the limit (or not a number: the sums overflowed), else None.
+
+        Parameters
+        ----------
+        q, qd : ndarray, shape (N, 3)
+            Positions [m] and velocities [m/s] after a step.
+
+        Returns
+        -------
+        float or None
+            ``W`` [J] (possibly inf or NaN) when above ``limit``, else None.
+        """
         with np.errstate(over="ignore", invalid="ignore"):
             w = self.work(q, qd)
         return None if w <= self.limit else w

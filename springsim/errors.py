@@ -41,7 +41,29 @@ class SceneTypeError(SceneError, TypeError):
 
 
 def registered(registry: dict, name, *, param: str, what: str):
-    """``registry[name]``, or a :class:`SceneError` naming ``param`` and listing the registered names."""
+    """``registry[name]``, or a :class:`SceneError` naming ``param`` and listing the registered names.
+
+    Parameters
+    ----------
+    registry : dict
+        Name -> registered object (``INTEGRATORS``, ``LINEAR_SOLVERS``, ...).
+    name : object
+        The name asked for (any type: a non-string is reported, not raised as a TypeError).
+    param : str
+        Field path named by the error (``"solver.integrator"``).
+    what : str
+        What the registry holds, for the message (``"integrator"``).
+
+    Returns
+    -------
+    object
+        ``registry[name]``.
+
+    Raises
+    ------
+    SceneError
+        ``name`` is not registered.
+    """
     try:
         return registry[name]
     except (KeyError, TypeError):
@@ -58,6 +80,15 @@ class SimulationError(SpringsimError):
     The frames computed before the failure are kept in :attr:`trajectory`
     (a :class:`springsim.driver.Trajectory` or ``None``); :attr:`step` is the step at which
     it stopped.
+
+    Parameters
+    ----------
+    message : str
+        What stopped the run.
+    trajectory : Trajectory, optional
+        The frames computed before the failure.
+    step : int, optional
+        The step at which the run stopped.
     """
 
     def __init__(self, message: str, trajectory=None, step: int | None = None):
@@ -70,6 +101,15 @@ class SimulationInterrupted(KeyboardInterrupt):
     """The run was interrupted (Ctrl-C); :attr:`trajectory` holds the frames so far.
 
     A ``KeyboardInterrupt``, so that it stops the caller too unless caught by name.
+
+    Parameters
+    ----------
+    message : str
+        What was interrupted.
+    trajectory : Trajectory, optional
+        The frames computed before the interrupt.
+    step : int, optional
+        The step at which the run stopped.
     """
 
     def __init__(self, message: str, trajectory=None, step: int | None = None):

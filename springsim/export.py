@@ -62,7 +62,23 @@ EXPORT_FORMATS = {
 
 
 def require_meshio(fmt: str):
-    """The meshio module, or a one-line :class:`SpringsimError` with the install hint."""
+    """The meshio module, or a one-line :class:`SpringsimError` with the install hint.
+
+    Parameters
+    ----------
+    fmt : str
+        The export format that needs meshio, for the message.
+
+    Returns
+    -------
+    module
+        The imported ``meshio``.
+
+    Raises
+    ------
+    SpringsimError
+        meshio is not installed.
+    """
     try:
         import meshio
     except ImportError:
@@ -71,7 +87,18 @@ def require_meshio(fmt: str):
 
 
 def cloth_quads(model) -> np.ndarray:
-    """Quads (Q, 4) of the model's cloth grids (``model.cloth_grids``); (0, 4) if none."""
+    """Quads (Q, 4) of the model's cloth grids (``model.cloth_grids``); (0, 4) if none.
+
+    Parameters
+    ----------
+    model : Model
+        A model whose ``cloth_grids`` records its grids ``(start, nx, ny)``.
+
+    Returns
+    -------
+    ndarray of int64, shape (Q, 4)
+        Particle indices of each quad, counter-clockwise.
+    """
     quads = [np.zeros((0, 4), dtype=np.int64)] + [grid_quads(*g) for g in model.cloth_grids]
     return np.concatenate(quads)
 

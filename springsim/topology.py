@@ -99,6 +99,18 @@ def cloth_grid_pairs(nx: int, ny: int, *, bending: bool = True) -> dict[str, np.
     Returns a dict with ``structural_x`` (along i), ``structural_y`` (along j),
     ``shear`` (both diagonals) and, when ``bending``, ``bending`` (distance two along
     i and j); each an int64 array of shape (k, 2).
+
+    Parameters
+    ----------
+    nx, ny : int
+        Particles along i and j, each >= 1.
+    bending : bool
+        Include the bending pairs (distance two along i and j).
+
+    Returns
+    -------
+    dict of str to ndarray
+        Family name -> int64 array of local index pairs, shape (k, 2).
     """
     idx = np.arange(nx * ny, dtype=np.int64).reshape(ny, nx)
 
@@ -179,6 +191,27 @@ def index_mask(path: str, indices, count: int) -> np.ndarray:
     """Boolean mask (count,) of particle ``indices``: an integer, a list, range or integer array of them,
     or a boolean array of shape (count,) (returned as a copy); vectorised. Booleans mixed with integers,
     floats and strings are refused; an out-of-range index is a SceneError naming its item (``path[k]``).
+
+    Parameters
+    ----------
+    path : str
+        Item path for error messages.
+    indices : int, sequence of int, range, ndarray of int, or ndarray of bool, shape (count,)
+        The particles to mark.
+    count : int
+        Number of particles.
+
+    Returns
+    -------
+    ndarray of bool, shape (count,)
+        True at the given particles.
+
+    Raises
+    ------
+    SceneTypeError
+        Booleans mixed with integers, floats or strings, or an array of the wrong shape.
+    SceneError
+        An index out of ``[0, count)``.
     """
     mask = np.zeros(count, dtype=bool)
     if isinstance(indices, (bool, np.bool_)):
@@ -317,14 +350,38 @@ def _box_mask(path: str, box, positions) -> np.ndarray:
 
 
 def cloth_quads(start: int, nx: int, ny: int) -> np.ndarray:
-    """The (nx-1)(ny-1) quads (Q, 4) of a grid whose particle (0, 0) has index ``start``, counter-clockwise."""
+    """The (nx-1)(ny-1) quads (Q, 4) of a grid whose particle (0, 0) has index ``start``, counter-clockwise.
+
+    Parameters
+    ----------
+    start : int
+        Index of the grid's particle (0, 0).
+    nx, ny : int
+        Particles along i and j.
+
+    Returns
+    -------
+    ndarray of int64, shape ((nx-1)(ny-1), 4)
+        Particle indices of each quad.
+    """
     idx = start + np.arange(nx * ny, dtype=np.int64).reshape(ny, nx)
     return np.stack([idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, 1:].ravel(), idx[1:, :-1].ravel()], axis=1)
 
 
 def springs_outside_grids(model) -> np.ndarray:
     """Indices of the springs that do not join two particles of the same cloth grid (drawn as lines
-    when the grids are drawn as surfaces, e.g. a weight hung from a cloth)."""
+    when the grids are drawn as surfaces, e.g. a weight hung from a cloth).
+
+    Parameters
+    ----------
+    model : Model
+        A model whose ``cloth_grids`` records its grids ``(start, nx, ny)``.
+
+    Returns
+    -------
+    ndarray of int64, shape (k,)
+        Spring indices.
+    """
     inside = np.zeros(model.spring_count, dtype=bool)
     ij = model.spring_indices
     for start, nx, ny in model.cloth_grids:

@@ -108,7 +108,20 @@ def _save_figure(fig, out, dpi) -> Path:
 
 def run_title(traj, scene: str | None = None) -> str:
     """``"<scene>: <integrator>, h = <dt> s"`` from a trajectory's :attr:`~springsim.driver.Trajectory.meta`
-    (adaptive runs: ``"adaptive, rtol = ..."``); the parts the metadata lacks are left out."""
+    (adaptive runs: ``"adaptive, rtol = ..."``); the parts the metadata lacks are left out.
+
+    Parameters
+    ----------
+    traj : Trajectory
+        A trajectory from :func:`springsim.simulate` or :func:`springsim.simulate_adaptive` (or loaded).
+    scene : str, optional
+        Scene name; default ``traj.meta["scene"]``.
+
+    Returns
+    -------
+    str
+        The title.
+    """
     m = traj.meta
     scene = scene if scene is not None else m.get("scene")
     parts = [m["integrator"]] if m.get("integrator") else []

@@ -28,6 +28,20 @@ def make_force_terms(model, *, skip_fixed: bool = True, kernels: str = "auto") -
 
     ``kernels``: ``"auto"`` (compiled force passes where numba is installed and the term is large enough),
     ``"numba"`` or ``"numpy"`` (the pure path), passed to every term's :meth:`ForceTerm.from_model`.
+
+    Parameters
+    ----------
+    model : Model
+        The model.
+    skip_fixed : bool
+        Drop items that act only between fixed particles.
+    kernels : {"auto", "numba", "numpy"}
+        Force evaluation path.
+
+    Returns
+    -------
+    list of ForceTerm
+        In the order of :data:`FORCE_TERMS`.
     """
     terms = (cls.from_model(model, skip_fixed=skip_fixed, kernels=kernels) for cls in FORCE_TERMS.values())
     return [t for t in terms if t is not None]
@@ -38,6 +52,22 @@ def eval_forces(terms, q, qd, out: np.ndarray | None = None) -> np.ndarray:
 
     The sum starts from the first term's :meth:`~ForceTerm.constant_force` when it has one (a copy, where
     zeroing and adding would be two passes; the same result, as ``0 + x = x``).
+
+    Parameters
+    ----------
+    terms : sequence of ForceTerm
+        The force terms.
+    q : ndarray, shape (N, 3)
+        Positions [m] of all particles.
+    qd : ndarray, shape (N, 3)
+        Velocities [m/s] of all particles.
+    out : ndarray, shape (N, 3), optional
+        Output array, overwritten; default a new one.
+
+    Returns
+    -------
+    ndarray, shape (N, 3)
+        Total force [N] (``out`` when given).
     """
     terms = terms if isinstance(terms, (list, tuple)) else list(terms)
     f = np.empty_like(q) if out is None else out
@@ -53,7 +83,24 @@ def eval_forces(terms, q, qd, out: np.ndarray | None = None) -> np.ndarray:
 
 def eval_forces_discrete(terms, q0, q1, qd, out: np.ndarray) -> np.ndarray:
     """Total energy-momentum force (N, 3) [N] of ``terms`` over the step from ``q0`` to ``q1`` with the midpoint
-    velocity ``qd`` (:meth:`ForceTerm.eval_force_discrete`), into ``out``."""
+    velocity ``qd`` (:meth:`ForceTerm.eval_force_discrete`), into ``out``.
+
+    Parameters
+    ----------
+    terms : sequence of ForceTerm
+        The force terms.
+    q0, q1 : ndarray, shape (N, 3)
+        Positions [m] at the start and the end of the step.
+    qd : ndarray, shape (N, 3)
+        Midpoint velocity [m/s].
+    out : ndarray, shape (N, 3)
+        Output array [N], overwritten.
+
+    Returns
+    -------
+    ndarray, shape (N, 3)
+        ``out``.
+    """
     out.fill(0.0)
     for t in terms:
         t.eval_force_discrete(q0, q1, qd, out)
@@ -61,7 +108,26 @@ def eval_forces_discrete(terms, q0, q1, qd, out: np.ndarray) -> np.ndarray:
 
 
 def dense_jacobians(terms, q, qd, mode: str = "exact") -> tuple[np.ndarray, np.ndarray]:
-    """Dense ``(dF/dq, dF/dqd)``, each (3N, 3N), summed over ``terms`` (small scenes only)."""
+    """Dense ``(dF/dq, dF/dqd)``, each (3N, 3N), summed over ``terms`` (small scenes only).
+
+    Parameters
+    ----------
+    terms : sequence of ForceTerm
+        The force terms.
+    q : ndarray, shape (N, 3)
+        Positions [m] of all particles.
+    qd : ndarray, shape (N, 3)
+        Velocities [m/s] of all particles.
+    mode : {"exact", "symmetric", "spd"}
+        Jacobian mode (:data:`JACOBIAN_MODES`).
+
+    Returns
+    -------
+    dq : ndarray, shape (3N, 3N)
+        ``dF/dq`` [N/m].
+    dqd : ndarray, shape (3N, 3N)
+        ``dF/dqd`` [N s/m].
+    """
     n = q.shape[0]
     dq = np.zeros((3 * n, 3 * n))
     dqd = np.zeros((3 * n, 3 * n))

@@ -55,7 +55,18 @@ class BlockLayout:
 
     @classmethod
     def pairs(cls, pairs: np.ndarray) -> "BlockLayout":
-        """Layout of ``[[K, -K], [-K, K]]`` for each pair ``(i, j)`` of ``pairs`` (P, 2)."""
+        """Layout of ``[[K, -K], [-K, K]]`` for each pair ``(i, j)`` of ``pairs`` (P, 2).
+
+        Parameters
+        ----------
+        pairs : ndarray of int64, shape (P, 2)
+            Particle index pairs.
+
+        Returns
+        -------
+        BlockLayout
+            Four triplets per pair, ``value_count`` = P.
+        """
         i, j = pairs[:, 0], pairs[:, 1]
         p = np.arange(pairs.shape[0], dtype=np.int64)
         one = np.ones(pairs.shape[0])
@@ -65,7 +76,18 @@ class BlockLayout:
 
     @classmethod
     def diagonal(cls, index: np.ndarray) -> "BlockLayout":
-        """Layout of one diagonal block per particle of ``index`` (k,)."""
+        """Layout of one diagonal block per particle of ``index`` (k,).
+
+        Parameters
+        ----------
+        index : array_like of int, shape (k,)
+            Particle indices.
+
+        Returns
+        -------
+        BlockLayout
+            One triplet per particle, ``value_count`` = k.
+        """
         index = np.asarray(index, dtype=np.int64)
         k = index.shape[0]
         return cls(index, index, np.arange(k, dtype=np.int64), np.ones(k), k)
@@ -92,7 +114,17 @@ class Blocks:
         return self.values[self.layout.src] * self.layout.sign[:, None, None]
 
     def toarray(self, particle_count: int) -> np.ndarray:
-        """Dense (3N, 3N) matrix of the summed triplets (reference and tests only)."""
+        """Dense (3N, 3N) matrix of the summed triplets (reference and tests only).
+
+        Parameters
+        ----------
+        particle_count : int
+            N, the number of particles.
+
+        Returns
+        -------
+        ndarray, shape (3N, 3N)
+        """
         out = np.zeros((particle_count, 3, particle_count, 3))
         np.add.at(out, (self.rows, slice(None), self.cols, slice(None)), self.blocks)
         return out.reshape(3 * particle_count, 3 * particle_count)
@@ -138,6 +170,19 @@ class ForceTerm(ABC):
         dropped: they never move anything. ``kernels`` (``"auto"``, ``"numba"`` or ``"numpy"``)
         chooses a compiled force evaluation where the term has one (:mod:`springsim._accel`); terms
         without one ignore it.
+
+        Parameters
+        ----------
+        model : Model
+            The model.
+        skip_fixed : bool
+            Drop items acting only between fixed particles.
+        kernels : {"auto", "numba", "numpy"}
+            Force evaluation path.
+
+        Returns
+        -------
+        ForceTerm or None
         """
 
     @abstractmethod
@@ -149,6 +194,17 @@ class ForceTerm(ABC):
         (a spring's direction) instead of ``q``; the implicit stages freeze it so that damping is a dissipation
         potential (:mod:`springsim.integrators._stage`). Terms whose dissipative part does not depend on the
         positions ignore it.
+
+        Parameters
+        ----------
+        q : ndarray, shape (N, 3)
+            Positions [m] of all particles.
+        qd : ndarray, shape (N, 3)
+            Velocities [m/s] of all particles.
+        f_out : ndarray, shape (N, 3)
+            Force accumulator [N], added to in place.
+        damping_geometry : ndarray, shape (N, 3), optional
+            Positions [m] that give the dissipative part its geometry; default ``q``.
         """
 
     def eval_jacobians(self, q: np.ndarray, qd: np.ndarray, mode: str = "exact", *,
@@ -163,14 +219,43 @@ class ForceTerm(ABC):
         which the term may keep its large temporaries between calls (:func:`scratch`); the
         returned blocks may then live in it, valid until the next call with the same dict.
         The assembler passes one per term, so repeated assemblies allocate nothing large
-        (fresh multi-MB arrays cost page faults on every call: BENCHMARKS.md, section 5). Overrides must
-        accept ``work`` (a term with small temporaries may ignore it).
+        (fresh multi-MB arrays cost page faults on every call: "Assembly and page faults" in
+        benchmarks/notes/2026-12-05-linear-solvers-and-amg.md). Overrides must accept ``work``
+        (a term with small temporaries may ignore it).
+
+        Parameters
+        ----------
+        q : ndarray, shape (N, 3)
+            Positions [m] of all particles.
+        qd : ndarray, shape (N, 3)
+            Velocities [m/s] of all particles.
+        mode : {"exact", "symmetric", "spd"}
+            Jacobian mode (:data:`JACOBIAN_MODES`).
+        work : dict, optional
+            Scratch space owned by the caller (:func:`scratch`).
+        damping_geometry : ndarray, shape (N, 3), optional
+            Positions [m] that give the dissipative part its geometry; default ``q``.
+
+        Returns
+        -------
+        dq : Blocks or None
+            ``dF/dq`` [N/m] in :attr:`layout_q`, None where the term does not depend on ``q``.
+        dqd : Blocks or None
+            ``dF/dqd`` [N s/m] in :attr:`layout_qd`, None where the term does not depend on ``qd``.
         """
         return None, None
 
     def linearize_at(self, q: np.ndarray, work: dict) -> None:
         """Make ``q`` the previous linearisation of the ``mixed`` Jacobian mode in ``work`` (the term's workspace,
-        :meth:`eval_jacobians`); terms without such a state ignore it."""
+        :meth:`eval_jacobians`); terms without such a state ignore it.
+
+        Parameters
+        ----------
+        q : ndarray, shape (N, 3)
+            Positions [m] of the linearisation.
+        work : dict
+            The term's workspace.
+        """
 
     def eval_force_discrete(self, q0: np.ndarray, q1: np.ndarray, qd: np.ndarray, f_out: np.ndarray) -> None:
         """Accumulate this term's force over the step from ``q0`` to ``q1`` into ``f_out`` (N, 3).
@@ -181,6 +266,15 @@ class ForceTerm(ABC):
         the velocity ``qd``. This default, the force at the midpoint ``(q0 + q1)/2``, is exact for
         dissipative terms and for potentials at most quadratic in ``q`` (uniform gravity); terms with other
         potentials override it.
+
+        Parameters
+        ----------
+        q0, q1 : ndarray, shape (N, 3)
+            Positions [m] at the start and the end of the step.
+        qd : ndarray, shape (N, 3)
+            Midpoint velocity [m/s].
+        f_out : ndarray, shape (N, 3)
+            Force accumulator [N], added to in place.
         """
         self.eval_force(0.5 * (q0 + q1), qd, f_out)
 
@@ -189,17 +283,58 @@ class ForceTerm(ABC):
         """Derivatives of :meth:`eval_force_discrete` with respect to the midpoint ``q_m = (q0 + q1)/2`` (``q0``
         held, ``q1 = 2 q_m - q0``) and to ``qd``, as :meth:`eval_jacobians` gives them (same layouts, modes and
         ``work``). At ``q0 = q1`` they are the ordinary Jacobians. This default, the Jacobians at the midpoint,
-        goes with the default :meth:`eval_force_discrete`."""
+        goes with the default :meth:`eval_force_discrete`.
+
+        Parameters
+        ----------
+        q0, q1 : ndarray, shape (N, 3)
+            Positions [m] at the start and the end of the step.
+        qd : ndarray, shape (N, 3)
+            Midpoint velocity [m/s].
+        mode : {"exact", "symmetric", "spd"}
+            Jacobian mode (:data:`JACOBIAN_MODES`).
+        work : dict, optional
+            Scratch space owned by the caller (:func:`scratch`).
+
+        Returns
+        -------
+        dq : Blocks or None
+            ``dF/dq`` [N/m] in :attr:`layout_q`, None where the term does not depend on ``q``.
+        dqd : Blocks or None
+            ``dF/dqd`` [N s/m] in :attr:`layout_qd`, None where the term does not depend on ``qd``.
+        """
         return self.eval_jacobians(0.5 * (q0 + q1), qd, mode, work=work)
 
     def jacobian_symmetric_discrete(self, mode: str) -> bool:
-        """:meth:`jacobian_symmetric` for :meth:`eval_jacobians_discrete`."""
+        """:meth:`jacobian_symmetric` for :meth:`eval_jacobians_discrete`.
+
+        Parameters
+        ----------
+        mode : {"exact", "symmetric", "spd"}
+            Jacobian mode (:data:`JACOBIAN_MODES`).
+
+        Returns
+        -------
+        bool
+        """
         return self.jacobian_symmetric(mode)
 
     def jacobian_symmetric(self, mode: str, *, frozen_damping: bool = False) -> bool:
         """Whether this term's contribution ``-a dF/dq - b dF/dqd`` to the system matrix is symmetric
         in Jacobian ``mode`` (every ``a``, ``b``; ``frozen_damping``: with a ``damping_geometry``). Terms with a non-symmetric derivative override it;
-        the assembler declares its matrix symmetric only when every term is."""
+        the assembler declares its matrix symmetric only when every term is.
+
+        Parameters
+        ----------
+        mode : {"exact", "symmetric", "spd"}
+            Jacobian mode (:data:`JACOBIAN_MODES`).
+        frozen_damping : bool
+            The damping geometry is frozen (``damping_geometry`` given).
+
+        Returns
+        -------
+        bool
+        """
         return True
 
     def constant_force(self) -> np.ndarray | None:
@@ -210,13 +345,36 @@ class ForceTerm(ABC):
         return None
 
     def potential_energy(self, q: np.ndarray) -> float:
-        """Potential energy [J] at ``q`` (0 for dissipative terms)."""
+        """Potential energy [J] at ``q`` (0 for dissipative terms).
+
+        Parameters
+        ----------
+        q : ndarray, shape (N, 3)
+            Positions [m].
+
+        Returns
+        -------
+        float
+            Potential energy [J].
+        """
         return 0.0
 
     def dissipation(self, geometry: np.ndarray, qd: np.ndarray) -> float:
         """Rayleigh dissipation function ``1/2 qd^T D(geometry) qd`` [W] of the dissipative part (0 if none).
 
         The dissipative force is ``-D qd = -d/dqd`` of it; it is half the power the term dissipates.
+
+        Parameters
+        ----------
+        geometry : ndarray, shape (N, 3)
+            Positions [m] that give the dissipative part its geometry.
+        qd : ndarray, shape (N, 3)
+            Velocities [m/s].
+
+        Returns
+        -------
+        float
+            Dissipation function [W].
         """
         return 0.0
 
@@ -233,7 +391,22 @@ class ForceTerm(ABC):
 
 def scratch(work: dict | None, name: str, shape: tuple) -> np.ndarray:
     """An uninitialised float64 array of ``shape``: ``work[name]`` when it has that shape
-    (kept from an earlier call), else a new one, stored in ``work`` when given."""
+    (kept from an earlier call), else a new one, stored in ``work`` when given.
+
+    Parameters
+    ----------
+    work : dict or None
+        Scratch space owned by the caller; None: always a new array.
+    name : str
+        Key of the array in ``work``.
+    shape : tuple of int
+        Shape of the array.
+
+    Returns
+    -------
+    ndarray
+        Uninitialised float64 array of ``shape``.
+    """
     if work is None:
         return np.empty(shape)
     a = work.get(name)
@@ -248,6 +421,28 @@ def pair_geometry(q: np.ndarray, pairs: np.ndarray, eps, work: dict | None = Non
     Returns ``d = q_i - q_j`` (P, 3), ``l = |d|`` (P,), ``n = d / l`` (P, 3) and a
     mask ``near`` of pairs closer than ``eps`` (a float or one per pair; there ``n`` is set to zero). With ``work``
     (see :meth:`ForceTerm.eval_jacobians`) ``d``, ``l`` and ``n`` live in it.
+
+    Parameters
+    ----------
+    q : ndarray, shape (N, 3)
+        Positions [m].
+    pairs : ndarray of int64, shape (P, 2)
+        Particle index pairs ``(i, j)``.
+    eps : float or ndarray, shape (P,)
+        Distance [m] below which a pair counts as coincident.
+    work : dict, optional
+        Scratch space owned by the caller (:func:`scratch`).
+
+    Returns
+    -------
+    d : ndarray, shape (P, 3)
+        ``q_i - q_j`` [m].
+    l : ndarray, shape (P,)
+        ``|d|`` [m].
+    n : ndarray, shape (P, 3)
+        Unit directions ``d / l`` (zero where ``near``).
+    near : ndarray of bool, shape (P,)
+        Pairs closer than ``eps``.
     """
     P = pairs.shape[0]
     d = scratch(work, "pair_d", (P, 3))
@@ -262,14 +457,42 @@ def pair_geometry(q: np.ndarray, pairs: np.ndarray, eps, work: dict | None = Non
 
 def step_pairs(incidence: "PairIncidence", q0: np.ndarray, q1: np.ndarray):
     """Pair vectors and lengths at both ends of a step, ``(d0, d1, l0, l1)`` (the energy-momentum forms,
-    :meth:`ForceTerm.eval_force_discrete`)."""
+    :meth:`ForceTerm.eval_force_discrete`).
+
+    Parameters
+    ----------
+    incidence : PairIncidence
+        The pairs.
+    q0, q1 : ndarray, shape (N, 3)
+        Positions [m] at the start and the end of the step.
+
+    Returns
+    -------
+    d0, d1 : ndarray, shape (P, 3)
+        Pair vectors [m] at ``q0`` and ``q1``.
+    l0, l1 : ndarray, shape (P,)
+        Their lengths [m].
+    """
     d0 = incidence.diff(q0)
     d1 = incidence.diff(q1)
     return d0, d1, np.sqrt(np.einsum("ij,ij->i", d0, d0)), np.sqrt(np.einsum("ij,ij->i", d1, d1))
 
 
 def outer(a: np.ndarray, b: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-    """Row-wise outer products, (P, 3) x (P, 3) -> (P, 3, 3) (into ``out`` when given)."""
+    """Row-wise outer products, (P, 3) x (P, 3) -> (P, 3, 3) (into ``out`` when given).
+
+    Parameters
+    ----------
+    a, b : ndarray, shape (P, 3)
+        Row vectors.
+    out : ndarray, shape (P, 3, 3), optional
+        Output array.
+
+    Returns
+    -------
+    ndarray, shape (P, 3, 3)
+        ``a[p] b[p]^T`` for every row p.
+    """
     return np.multiply(a[:, :, None], b[:, None, :], out=out)
 
 
@@ -279,8 +502,13 @@ class PairIncidence:
     ``D @ x`` gives the pair differences ``x_i - x_j`` (exactly: each row adds two terms), and
     ``D.T @ f`` accumulates ``+f`` on the first particle and ``-f`` on the second. Both are
     one sparse product over an (N, 3) or (P, 3) array, several times faster than fancy-index
-    gathers and ``bincount`` scatters (BENCHMARKS.md, "Explicit path"). Built on first use for
+    gathers and ``bincount`` scatters (BENCHMARKS.md#explicit-speed). Built on first use for
     the particle count of the arrays it is given.
+
+    Parameters
+    ----------
+    pairs : ndarray of int64, shape (P, 2)
+        Particle index pairs ``(i, j)``.
     """
 
     def __init__(self, pairs: np.ndarray):
@@ -299,20 +527,53 @@ class PairIncidence:
         self._n = n
 
     def diff(self, x: np.ndarray) -> np.ndarray:
-        """``x[i] - x[j]`` for every pair, shape (P, 3)."""
+        """``x[i] - x[j]`` for every pair, shape (P, 3).
+
+        Parameters
+        ----------
+        x : ndarray, shape (N, 3)
+            Per-particle vectors (positions [m], velocities [m/s], ...).
+
+        Returns
+        -------
+        ndarray, shape (P, 3)
+        """
         if x.shape[0] != self._n:
             self._build(x.shape[0])
         return self.D @ x
 
     def scatter(self, f: np.ndarray, out: np.ndarray) -> None:
-        """Add ``f`` (P, 3) to the first particle of each pair and ``-f`` to the second, in ``out`` (N, 3)."""
+        """Add ``f`` (P, 3) to the first particle of each pair and ``-f`` to the second, in ``out`` (N, 3).
+
+        Parameters
+        ----------
+        f : ndarray, shape (P, 3)
+            Per-pair vectors (forces [N]).
+        out : ndarray, shape (N, 3)
+            Accumulator, added to in place.
+        """
         if out.shape[0] != self._n:
             self._build(out.shape[0])
         out += self.DT @ f
 
 
 def active_pairs(pairs: np.ndarray, fixed: np.ndarray, skip_fixed: bool) -> np.ndarray:
-    """Indices of the pairs that touch at least one free particle (all when not skipping)."""
+    """Indices of the pairs that touch at least one free particle (all when not skipping).
+
+    Parameters
+    ----------
+    pairs : ndarray of int64, shape (P, 2)
+        Particle index pairs.
+    fixed : ndarray of bool, shape (N,)
+        Fixed particles.
+    skip_fixed : bool
+        Drop pairs between two fixed particles.
+
+    Returns
+    -------
+    ndarray of int64, shape (k,)
+        Indices into ``pairs``.
+    """
     if not skip_fixed:
         return np.arange(pairs.shape[0])
     return np.flatnonzero(~(fixed[pairs[:, 0]] & fixed[pairs[:, 1]]))

@@ -18,6 +18,23 @@ def spring_forces(q, qd, pairs, ke, kd, l0, eps, out):  # pragma: no cover - com
 
     Elastic ``-k (1 - l0 / max(l, eps)) d``; damping ``-b (n . v) n = -b (d . v) / l^2 d`` where
     ``b > 0`` and ``l >= eps`` (zero below eps).
+
+    Parameters
+    ----------
+    q, qd : ndarray, shape (N, 3)
+        Positions [m] and velocities [m/s].
+    pairs : ndarray of int64, shape (P, 2)
+        Spring end particles.
+    ke : ndarray, shape (P,)
+        Spring stiffness [N/m].
+    kd : ndarray, shape (P,)
+        Spring damping [N s/m].
+    l0 : ndarray, shape (P,)
+        Rest lengths [m].
+    eps : float
+        Length [m] below which a spring counts as degenerate.
+    out : ndarray, shape (N, 3)
+        Force accumulator [N], added to in place.
     """
     for p in range(pairs.shape[0]):
         i = pairs[p, 0]

@@ -10,7 +10,15 @@ __all__ = ["ForceDrag"]
 
 
 class ForceDrag(ForceTerm):
-    """Drag on the particles ``index`` (k,) with coefficients ``beta`` (k,) [N s/m]."""
+    """Drag on the particles ``index`` (k,) with coefficients ``beta`` (k,) [N s/m].
+
+    Parameters
+    ----------
+    index : array_like of int, shape (k,)
+        Particles with drag.
+    beta : array_like, shape (k,)
+        Drag coefficients [N s/m], >= 0.
+    """
 
     name = "drag"
     dissipative = True

@@ -109,13 +109,42 @@ class ForceGravitational(ForceTerm):
         return dm, l1, d1, s, s1
 
     def eval_force_discrete(self, q0, q1, qd, f_out):
-        """Discrete gradient of the softened pair potential ``phi(l)`` (module docstring)."""
+        """Discrete gradient of the softened pair potential ``phi(l)`` (module docstring).
+
+        Parameters
+        ----------
+        q0, q1 : ndarray, shape (N, 3)
+            Positions [m] at the start and the end of the step.
+        qd : ndarray, shape (N, 3)
+            Midpoint velocity [m/s].
+        f_out : ndarray, shape (N, 3)
+            Force accumulator [N], added to in place.
+        """
         dm, _, _, s, _ = self._discrete_coefficient(q0, q1)
         dm *= -s[:, None]
         self.incidence.scatter(dm, f_out)
 
     def eval_jacobians_discrete(self, q0, q1, qd, mode="exact", *, work=None):
-        """Derivative of :meth:`eval_force_discrete` with respect to the midpoint (module docstring)."""
+        """Derivative of :meth:`eval_force_discrete` with respect to the midpoint (module docstring).
+
+        Parameters
+        ----------
+        q0, q1 : ndarray, shape (N, 3)
+            Positions [m] at the start and the end of the step.
+        qd : ndarray, shape (N, 3)
+            Midpoint velocity [m/s].
+        mode : {"exact", "symmetric", "spd"}
+            Jacobian mode (:data:`JACOBIAN_MODES`).
+        work : dict, optional
+            Scratch space owned by the caller (:func:`scratch`).
+
+        Returns
+        -------
+        dq : Blocks or None
+            ``dF/dq`` [N/m] in :attr:`layout_q`, None where the term does not depend on ``q``.
+        dqd : Blocks or None
+            ``dF/dqd`` [N s/m] in :attr:`layout_qd`, None where the term does not depend on ``qd``.
+        """
         P = self.pairs.shape[0]
         dm, l1, d1, s, s1 = self._discrete_coefficient(q0, q1)
         K = scratch(work, "K", (P, 3, 3))

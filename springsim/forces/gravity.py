@@ -10,7 +10,15 @@ __all__ = ["ForceGravity"]
 
 
 class ForceGravity(ForceTerm):
-    """Uniform gravity ``g`` [m/s^2] (3-vector) acting on masses ``mass`` (N,)."""
+    """Uniform gravity ``g`` [m/s^2] (3-vector) acting on masses ``mass`` (N,).
+
+    Parameters
+    ----------
+    mass : array_like, shape (N,)
+        Particle masses [kg].
+    g : array_like, shape (3,)
+        Gravitational acceleration [m/s^2].
+    """
 
     name = "gravity"
     conservative = True

@@ -19,6 +19,18 @@ def naive_forces(model, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
     Degenerate pairs are treated as in the force terms: below ``model.pair_epsilon`` a spring's
     elastic force is ``-k (1 - l0/eps) d`` and its damping zero; below its softening length a
     gravitational pair's force is ``-G m_i m_j d / eps^3``.
+
+    Parameters
+    ----------
+    model : Model
+        The model.
+    q, qd : ndarray, shape (N, 3)
+        Positions [m] and velocities [m/s].
+
+    Returns
+    -------
+    ndarray, shape (N, 3)
+        Total force [N].
     """
     f = model.particle_mass[:, None] * model.gravity_vector[None, :]
     f = f - model.particle_drag[:, None] * qd

@@ -185,7 +185,20 @@ class ForceSpring(ForceTerm):
         return (self._kd_damped * np.einsum("ij,ij->i", n, v))[:, None] * n
 
     def dissipation(self, geometry, qd):
-        """``1/2 sum b (n . v)^2`` over the damped springs, ``n`` from ``geometry``."""
+        """``1/2 sum b (n . v)^2`` over the damped springs, ``n`` from ``geometry``.
+
+        Parameters
+        ----------
+        geometry : ndarray, shape (N, 3)
+            Positions [m] that give the spring directions.
+        qd : ndarray, shape (N, 3)
+            Velocities [m/s].
+
+        Returns
+        -------
+        float
+            Dissipation function [W].
+        """
         if not self.damped.size:
             return 0.0
         n = self._damped_directions(geometry)
@@ -193,7 +206,17 @@ class ForceSpring(ForceTerm):
         return 0.5 * float(np.dot(self._kd_damped, nv * nv))
 
     def eval_force_discrete(self, q0, q1, qd, f_out):
-        """Discrete gradient of ``k/2 (l - l0)^2`` (module docstring) plus the damping at the midpoint."""
+        """Discrete gradient of ``k/2 (l - l0)^2`` (module docstring) plus the damping at the midpoint.
+
+        Parameters
+        ----------
+        q0, q1 : ndarray, shape (N, 3)
+            Positions [m] at the start and the end of the step.
+        qd : ndarray, shape (N, 3)
+            Midpoint velocity [m/s].
+        f_out : ndarray, shape (N, 3)
+            Force accumulator [N], added to in place.
+        """
         d0, d, lbar, l1 = step_pairs(self.incidence, q0, q1)
         lbar += l1
         lbar *= 0.5
@@ -254,7 +277,26 @@ class ForceSpring(ForceTerm):
         return Blocks(self.layout_qd, -b[:, None, None] * nn[s])
 
     def eval_jacobians_discrete(self, q0, q1, qd, mode="exact", *, work=None):
-        """Derivatives of :meth:`eval_force_discrete` with respect to the midpoint (module docstring)."""
+        """Derivatives of :meth:`eval_force_discrete` with respect to the midpoint (module docstring).
+
+        Parameters
+        ----------
+        q0, q1 : ndarray, shape (N, 3)
+            Positions [m] at the start and the end of the step.
+        qd : ndarray, shape (N, 3)
+            Midpoint velocity [m/s].
+        mode : {"exact", "symmetric", "spd"}
+            Jacobian mode (:data:`JACOBIAN_MODES`).
+        work : dict, optional
+            Scratch space owned by the caller (:func:`scratch`).
+
+        Returns
+        -------
+        dq : Blocks or None
+            ``dF/dq`` [N/m] in :attr:`layout_q`, None where the term does not depend on ``q``.
+        dqd : Blocks or None
+            ``dF/dqd`` [N s/m] in :attr:`layout_qd`, None where the term does not depend on ``qd``.
+        """
         P = self.pairs.shape[0]
         qm = 0.5 * (q0 + q1)
         d, l, n, near = pair_geometry(qm, self.pairs, self.eps, work)  # midpoint geometry, for the damping

@@ -36,12 +36,39 @@ LINEAR_SOLVERS: dict[str, type[LinearSolver]] = {
 
 
 def linear_solver_class(name: str) -> type[LinearSolver]:
-    """The registered solver class ``name``; a SceneError naming ``linear_solver`` and the choices if unknown."""
+    """The registered solver class ``name``; a SceneError naming ``linear_solver`` and the choices if unknown.
+
+    Parameters
+    ----------
+    name : str
+        A key of :data:`LINEAR_SOLVERS`.
+
+    Returns
+    -------
+    type
+        A :class:`LinearSolver` subclass.
+
+    Raises
+    ------
+    SceneError
+        ``name`` is not registered.
+    """
     return registered(LINEAR_SOLVERS, name, param="linear_solver", what="linear solver")
 
 
 def make_linear_solver(name: str | LinearSolver, **options) -> LinearSolver:
     """Instantiate a registered solver by name with ``options`` (an instance passes through unchanged).
+
+    Parameters
+    ----------
+    name : str or LinearSolver
+        A key of :data:`LINEAR_SOLVERS`, or an instance.
+    **options
+        Keyword options of the solver class (``rtol``, ``atol``, ``maxiter``, ...).
+
+    Returns
+    -------
+    LinearSolver
 
     Raises
     ------

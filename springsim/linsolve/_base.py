@@ -91,14 +91,38 @@ class LinearSolveResult:
 
 
 def relative_residual(A, x: np.ndarray, b: np.ndarray) -> float:
-    """``|b - A x|_2 / |b|_2`` (``|b - A x|_2`` when ``b = 0``)."""
+    """``|b - A x|_2 / |b|_2`` (``|b - A x|_2`` when ``b = 0``).
+
+    Parameters
+    ----------
+    A : SystemMatrix, scipy.sparse matrix or ndarray, shape (n, n)
+        The matrix.
+    b : ndarray, shape (n,)
+        Right-hand side.
+    x : ndarray, shape (n,)
+        Approximate solution.
+
+    Returns
+    -------
+    float
+    """
     bn = np.linalg.norm(b)
     r = np.linalg.norm(b - A @ x)
     return float(r / bn) if bn > 0 else float(r)
 
 
 def inf_norm(A) -> float:
-    """``|A|_inf``, the largest absolute row sum of a sparse or dense matrix."""
+    """``|A|_inf``, the largest absolute row sum of a sparse or dense matrix.
+
+    Parameters
+    ----------
+    A : scipy.sparse matrix or ndarray
+        The matrix.
+
+    Returns
+    -------
+    float
+    """
     if sp.issparse(A):
         A = A.tocsr()
         absA = sp.csr_matrix((np.abs(A.data), A.indices, A.indptr), shape=A.shape)
@@ -112,6 +136,22 @@ def backward_error(A, x: np.ndarray, b: np.ndarray, A_norm: float | None = None)
     The smallest ``eta`` such that ``(A + dA) x = b + db`` with ``|dA| <= eta |A|`` and
     ``|db| <= eta |b|`` in the infinity norm (Rigal and Gaches 1967). ``A_norm`` may pass a
     precomputed ``|A|_inf``. Infinite when ``x`` is not finite.
+
+    Parameters
+    ----------
+    A : SystemMatrix, scipy.sparse matrix or ndarray, shape (n, n)
+        The matrix.
+    b : ndarray, shape (n,)
+        Right-hand side.
+    x : ndarray, shape (n,)
+        Approximate solution.
+    A_norm : float, optional
+        ``|A|_inf``, if already known.
+
+    Returns
+    -------
+    float
+        ``eta`` (inf when ``x`` is not finite).
     """
     if not np.all(np.isfinite(x)):
         return float("inf")
@@ -122,7 +162,17 @@ def backward_error(A, x: np.ndarray, b: np.ndarray, A_norm: float | None = None)
 
 
 def as_system_matrix(A):
-    """Wrap a scipy sparse matrix or ndarray as a SystemMatrix-like object."""
+    """Wrap a scipy sparse matrix or ndarray as a SystemMatrix-like object.
+
+    Parameters
+    ----------
+    A : SystemMatrix, scipy.sparse matrix or ndarray
+        The matrix.
+
+    Returns
+    -------
+    SystemMatrix or a stand-in with its attributes (``bsr``, ``shape``, ``symmetric``, ``pattern`` None, ...)
+    """
     from ..assembly.assemble import SystemMatrix
 
     if isinstance(A, SystemMatrix):
@@ -187,7 +237,17 @@ class LinearSolver(ABC):
 
     def needs_spd_for(self, dofs: int) -> bool:
         """Whether systems of ``dofs`` unknowns need the ``spd`` Jacobian mode with this solver
-        (integrators choose their default mode with it); ``needs_spd`` unless overridden."""
+        (integrators choose their default mode with it); ``needs_spd`` unless overridden.
+
+        Parameters
+        ----------
+        dofs : int
+            Number of unknowns.
+
+        Returns
+        -------
+        bool
+        """
         return self.needs_spd
 
     def solve(self, A, b: np.ndarray, *, x0: np.ndarray | None = None, rtol: float | None = None) -> LinearSolveResult:
@@ -196,6 +256,27 @@ class LinearSolver(ABC):
         ``rtol`` replaces :attr:`rtol` for this solve (iterative solvers; e.g. the forcing term of an
         inexact Newton iteration); direct solvers solve to round-off whatever it is.
         Runs with one BLAS thread (:func:`springsim._threads.single_blas_thread`).
+
+        Parameters
+        ----------
+        A : SystemMatrix, scipy.sparse matrix or ndarray, shape (n, n)
+            The matrix.
+        b : ndarray, shape (n,)
+            Right-hand side.
+        x0 : ndarray, shape (n,), optional
+            Initial guess.
+        rtol : float, optional
+            Relative tolerance for this solve, >= 0.
+
+        Returns
+        -------
+        LinearSolveResult
+            The solution with its convergence, fallback and timing statistics.
+
+        Raises
+        ------
+        ValueError
+            ``b`` of the wrong shape, or a negative ``rtol``.
         """
         A = as_system_matrix(A)
         b = np.asarray(b, dtype=np.float64)

@@ -39,7 +39,8 @@ implicit system's 3x3 block structure:
   change the matrix by ~1e-3 relative (and a hierarchy serves them), consecutive steps of a falling
   cloth by 3-10e-2 (and it does not).
 
-The measurements behind these choices are in BENCHMARKS.md, section 5.
+The measurements behind these choices are in benchmarks/notes/2026-12-05-linear-solvers-and-amg.md
+("AMG design choices"); the current step times in BENCHMARKS.md#cloth-grid.
 """
 
 from __future__ import annotations
@@ -64,6 +65,15 @@ def rigid_body_modes(positions: np.ndarray) -> np.ndarray:
 
     Columns 0-2 are unit translations; 3-5 the infinitesimal rotations ``omega x (x - c)``
     about the axes through the centroid ``c`` (centring keeps the columns well conditioned).
+
+    Parameters
+    ----------
+    positions : ndarray, shape (F, 3)
+        Particle positions [m].
+
+    Returns
+    -------
+    ndarray, shape (3F, 6)
     """
     F = positions.shape[0]
     B = np.zeros((F, 3, 6))
@@ -76,7 +86,17 @@ def rigid_body_modes(positions: np.ndarray) -> np.ndarray:
 
 
 def translation_modes(F: int) -> np.ndarray:
-    """The three unit translations of ``F`` particles, (3F, 3)."""
+    """The three unit translations of ``F`` particles, (3F, 3).
+
+    Parameters
+    ----------
+    F : int
+        Number of particles.
+
+    Returns
+    -------
+    ndarray, shape (3F, 3)
+    """
     return np.tile(np.eye(3), (F, 1))
 
 
@@ -92,6 +112,15 @@ class BlockGaussSeidel:
 
     Called as a pyamg smoother, ``smoother(A, x, b)``, updating ``x`` in place; ``A`` must be the
     matrix given at construction.
+
+    Parameters
+    ----------
+    A : scipy.sparse.bsr_matrix, shape (n, n)
+        The level matrix, 3x3 blocks.
+    sweep : {"forward", "backward"}
+        Direction of the sweep.
+    kernels : {"scipy", "numba"}
+        pyamg's kernel or the compiled one.
     """
 
     def __init__(self, A, sweep: str = "forward", kernels: str = "scipy"):
@@ -204,7 +233,13 @@ class AMGPreconditioner(Preconditioner):
 
     def invalidate(self, stale: bool = False) -> None:
         """Forget the hierarchy (the next :meth:`setup` rebuilds); ``stale``
-        also starts the cooldown during which new matrices get fresh hierarchies."""
+        also starts the cooldown during which new matrices get fresh hierarchies.
+
+        Parameters
+        ----------
+        stale : bool
+            The hierarchy went stale on a new matrix (starts the cooldown).
+        """
         self.ml = None
         self.key = None
         self.baseline = None
@@ -214,7 +249,18 @@ class AMGPreconditioner(Preconditioner):
             self._next_cooldown = min(2 * max(self._next_cooldown, 1), self.max_cooldown)
 
     def build(self, A):
-        """A fresh hierarchy for ``A`` (no reuse): its V-cycle ``r -> M^-1 r``."""
+        """A fresh hierarchy for ``A`` (no reuse): its V-cycle ``r -> M^-1 r``.
+
+        Parameters
+        ----------
+        A : SystemMatrix
+            The matrix.
+
+        Returns
+        -------
+        callable
+            ``r -> M^-1 r`` on arrays of shape (n,).
+        """
         self._build(A, None)
         return self._precond
 
@@ -222,6 +268,19 @@ class AMGPreconditioner(Preconditioner):
         """``(apply, setup_s, fresh)`` for the system ``A``: a V-cycle ``r -> M^-1 r``.
 
         ``fresh`` is True when the hierarchy was (re)built for this call.
+
+        Parameters
+        ----------
+        A : SystemMatrix
+            The matrix of the next solve.
+
+        Returns
+        -------
+        apply : callable
+            ``r -> M^-1 r``.
+        setup_s : float
+            Seconds spent building the hierarchy (0 on reuse).
+        fresh : bool
         """
         key = (id(A.pattern), A.shape) if A.pattern is not None else None
         if self.ml is not None and key is not None and key == self.key:
@@ -243,7 +302,17 @@ class AMGPreconditioner(Preconditioner):
         return self._precond, time.perf_counter() - t0, True
 
     def operator(self, A):
-        """``A``'s BSR matrix, applied by the compiled block kernel with ``kernels="numba"``."""
+        """``A``'s BSR matrix, applied by the compiled block kernel with ``kernels="numba"``.
+
+        Parameters
+        ----------
+        A : SystemMatrix
+            The matrix.
+
+        Returns
+        -------
+        scipy.sparse.bsr_matrix or BsrOperator
+        """
         from ._kernels import bsr_operator
 
         return bsr_operator(A.bsr, self.kernels)
@@ -370,7 +439,17 @@ class AMGPreconditioner(Preconditioner):
         return ml
 
     def record(self, iterations: int, fresh: bool, ok: bool) -> None:
-        """Remember the iteration count right after a build (the stale-signal baseline)."""
+        """Remember the iteration count right after a build (the stale-signal baseline).
+
+        Parameters
+        ----------
+        iterations : int
+            Krylov iterations of the solve.
+        fresh : bool
+            The hierarchy was built for it.
+        ok : bool
+            The solve converged.
+        """
         if fresh and ok:
             self.baseline = int(iterations)
         elif not fresh and ok and self._trial:  # reuse worked on a new matrix: back to the short cooldown
@@ -382,6 +461,17 @@ class AMGPreconditioner(Preconditioner):
 
         A reused hierarchy gets ``rebuild_factor * baseline + rebuild_slack`` (the stale
         signal); a fresh one, or one without a baseline yet, the full ``maxiter``.
+
+        Parameters
+        ----------
+        maxiter : int
+            The solver's iteration limit.
+        fresh : bool
+            The hierarchy was built for this solve.
+
+        Returns
+        -------
+        int
         """
         if fresh or self.baseline is None:
             return maxiter
@@ -396,4 +486,15 @@ class AMGPreconditioner(Preconditioner):
                 "stale_rebuilds": self.stale_rebuilds, "nearby_reuses": self.nearby_reuses}
 
     def default_maxiter(self, n: int) -> int:
+        """Default Krylov iteration limit with an AMG V-cycle: 500, whatever the size.
+
+        Parameters
+        ----------
+        n : int
+            Number of unknowns.
+
+        Returns
+        -------
+        int
+        """
         return 500

@@ -3,7 +3,8 @@
 * ``3F <= direct_max_dofs`` (default :data:`DIRECT_MAX_DOFS`, 4,000): ``direct`` (SuperLU). Below
   this size a factorisation beats an AMG setup plus its iterations, and it is exact for indefinite
   and non-symmetric matrices alike; above it SuperLU's fill grows faster than AMG's linear cost
-  (the crossover, 3,000 to 5,000 DOFs on the benchmark cloth, is measured in BENCHMARKS.md, section 5).
+  (the crossover, 3,000 to 5,000 DOFs on the benchmark cloth, is measured in "`auto` crossover" of
+  benchmarks/notes/2026-12-05-linear-solvers-and-amg.md; BENCHMARKS.md#scaling has the current step times on both sides).
 * larger and symmetric (``symmetric``/``spd`` modes, or undamped ``exact``): ``amg-cg``; if the
   matrix is indefinite, CG detects it and hands over to ``direct``.
 * larger and non-symmetric (``exact`` with damping): ``amg-gmres``.
@@ -22,7 +23,8 @@ from .iterative import LinearSolverAMGCG, LinearSolverAMGGMRES
 
 __all__ = ["LinearSolverAuto", "DIRECT_MAX_DOFS"]
 
-#: Largest system [DOFs] ``auto`` gives to ``direct`` (the measured crossover, BENCHMARKS.md).
+#: Largest system [DOFs] ``auto`` gives to ``direct`` (the measured crossover,
+#: benchmarks/notes/2026-12-05-linear-solvers-and-amg.md).
 DIRECT_MAX_DOFS = 4000
 
 
@@ -67,10 +69,32 @@ class LinearSolverAuto(LinearSolver):
             solver.rtol = value
 
     def needs_spd_for(self, dofs: int) -> bool:
+        """Whether ``auto`` asks for the ``spd`` Jacobian: only above ``direct_max_dofs``, where it uses AMG-CG.
+
+        Parameters
+        ----------
+        dofs : int
+            Number of unknowns.
+
+        Returns
+        -------
+        bool
+        """
         return dofs > self.direct_max_dofs
 
     def choose(self, A) -> str:
-        """Name of the solver used for ``A``."""
+        """Name of the solver used for ``A``.
+
+        Parameters
+        ----------
+        A : SystemMatrix
+            The matrix.
+
+        Returns
+        -------
+        str
+            ``"direct"``, ``"amg-cg"`` or ``"amg-gmres"``.
+        """
         return self._choose(A)[0]
 
     def _choose(self, A) -> tuple[str, str]:

@@ -3,7 +3,8 @@
 The implicit system's pattern is structurally symmetric, so SuperLU orders it by
 minimum degree on ``A^T + A`` (``MMD_AT_PLUS_A``) in symmetric mode, taking diagonal
 pivots (``diag_pivot_thresh = 0``): far less fill than the default COLAMD ordering with
-partial pivoting on these matrices (BENCHMARKS.md, section 5). Diagonal pivoting is not
+partial pivoting on these matrices (SuperLU Users' Guide, Demmel, Gilbert and Li 1999; the factor times:
+BENCHMARKS.md#sparse-vs-dense). Diagonal pivoting is not
 backward stable for every matrix (an indefinite ``exact``-mode Jacobian can have tiny
 pivots), so every solution is checked:
 
@@ -47,6 +48,32 @@ def refine(A, solve, b: np.ndarray, x: np.ndarray, *, A_norm: float, tol: float,
 
     Stops when the normwise backward error is ``<= tol``, after ``steps`` corrections, or
     when a correction does not reduce it. Returns ``(x, eta, corrections)``.
+
+    Parameters
+    ----------
+    A : SystemMatrix, scipy.sparse matrix or ndarray, shape (n, n)
+        The matrix.
+    b : ndarray, shape (n,)
+        Right-hand side.
+    solve : callable
+        Approximate inverse ``r -> (LU)^-1 r``.
+    x : ndarray, shape (n,)
+        Starting solution.
+    A_norm : float
+        ``|A|_inf``.
+    tol : float
+        Target normwise backward error.
+    steps : int
+        Largest number of corrections.
+
+    Returns
+    -------
+    x : ndarray, shape (n,)
+        The refined solution.
+    eta : float
+        Its backward error.
+    corrections : int
+        Corrections applied.
     """
     eta = backward_error(A, x, b, A_norm)
     done = 0

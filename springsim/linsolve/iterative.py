@@ -149,7 +149,15 @@ def _amg_options(options: dict) -> dict:
 
 
 class LinearSolverCG(LinearSolverIterative):
-    """Preset ``cg``: CG preconditioned by ``"block-jacobi"`` (or ``preconditioner="jacobi"``)."""
+    """Preset ``cg``: CG preconditioned by ``"block-jacobi"`` (or ``preconditioner="jacobi"``).
+
+    Parameters
+    ----------
+    preconditioner : str or Preconditioner
+        ``"block-jacobi"`` (default), ``"jacobi"``, ``"none"`` or an instance.
+    **options
+        Options of :class:`LinearSolverIterative` (``rtol``, ``atol``, ``maxiter``, ``fallback``, ...).
+    """
 
     name = "cg"
     needs_spd = True
@@ -163,6 +171,11 @@ class LinearSolverAMGCG(LinearSolverIterative):
 
     Keyword options of :class:`~springsim.linsolve.amg.AMGPreconditioner` (``near_nullspace``,
     ``reuse``, ``sa_options``, ...) configure the preconditioner; the others the solver.
+
+    Parameters
+    ----------
+    **options
+        Options of :class:`~springsim.linsolve.amg.AMGPreconditioner` and of :class:`LinearSolverIterative`.
     """
 
     name = "amg-cg"
@@ -177,7 +190,17 @@ class LinearSolverAMGCG(LinearSolverIterative):
 
 class LinearSolverAMGGMRES(LinearSolverIterative):
     """Preset ``amg-gmres``: GMRES(``restart``) preconditioned by a non-symmetric AMG V-cycle, at most 300
-    inner iterations by default (non-symmetric systems: the ``exact`` Jacobian with damping)."""
+    inner iterations by default (non-symmetric systems: the ``exact`` Jacobian with damping).
+
+    Parameters
+    ----------
+    restart : int
+        GMRES restart length.
+    maxiter : int, optional
+        Iteration limit; default 300.
+    **options
+        Options of :class:`~springsim.linsolve.amg.AMGPreconditioner` and of :class:`LinearSolverIterative`.
+    """
 
     name = "amg-gmres"
     needs_spd = False

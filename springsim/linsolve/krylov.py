@@ -29,7 +29,17 @@ __all__ = ["KrylovInfo", "KrylovMethod", "CG", "GMRES", "KRYLOV_METHODS", "pcg"]
 class KrylovInfo:
     """Outcome of a Krylov run: ``iterations``, ``residual`` (true relative residual) and
     ``breakdown`` (None, ``"non-positive curvature"``, ``"non-convergence"``, ``"nan"``,
-    ``"indefinite preconditioner"``, ``"singular diagonal"``)."""
+    ``"indefinite preconditioner"``, ``"singular diagonal"``).
+
+    Parameters
+    ----------
+    iterations : int
+        Iterations taken.
+    residual : float
+        True relative residual ``|b - A x| / |b|`` at exit.
+    breakdown : str or None
+        Why the method stopped early, None when it converged.
+    """
 
     __slots__ = ("iterations", "residual", "breakdown")
 
@@ -60,6 +70,27 @@ def pcg(A, b: np.ndarray, precond, x0: np.ndarray | None, *, rtol: float, atol: 
     positive definite along ``p``), ``r^T M^-1 r <= 0`` (an indefinite preconditioner), a
     non-finite value, or no convergence within ``maxiter``. Returns the last iterate (on
     breakdown the caller falls back).
+
+    Parameters
+    ----------
+    A : scipy.sparse matrix or LinearOperator, shape (n, n)
+        Symmetric positive definite matrix (``A @ x``).
+    b : ndarray, shape (n,)
+        Right-hand side.
+    precond : callable
+        ``r -> M^-1 r``, symmetric positive definite.
+    x0 : ndarray, shape (n,) or None
+        Initial guess; None: zero.
+    rtol, atol : float
+        Relative and absolute residual tolerances.
+    maxiter : int
+        Iteration limit.
+
+    Returns
+    -------
+    x : ndarray, shape (n,)
+        Last iterate.
+    info : KrylovInfo
     """
     bnorm = float(np.linalg.norm(b))
     if bnorm == 0.0:

@@ -34,7 +34,17 @@ __all__ = ["Preconditioner", "IdentityPreconditioner", "JacobiPreconditioner", "
 
 
 def block_diagonal(A) -> np.ndarray:
-    """The 3x3 diagonal blocks (F, 3, 3) of a system matrix (a SystemMatrix, BSR or any sparse matrix)."""
+    """The 3x3 diagonal blocks (F, 3, 3) of a system matrix (a SystemMatrix, BSR or any sparse matrix).
+
+    Parameters
+    ----------
+    A : SystemMatrix or scipy.sparse matrix, shape (n, n)
+        The matrix.
+
+    Returns
+    -------
+    ndarray, shape (F, 3, 3)
+    """
     pattern = getattr(A, "pattern", None)
     bsr = A.bsr if hasattr(A, "bsr") else A
     if pattern is not None and bsr.data.shape[0] == pattern.nnzb:  # the assembler's matrix: a precomputed gather
@@ -61,11 +71,37 @@ class Preconditioner(ABC):
 
     @abstractmethod
     def build(self, A):
-        """The operator ``r -> M^-1 r`` for ``A``, or None when ``A`` does not allow one (a singular diagonal)."""
+        """The operator ``r -> M^-1 r`` for ``A``, or None when ``A`` does not allow one (a singular diagonal).
+
+        Parameters
+        ----------
+        A : SystemMatrix or scipy.sparse matrix, shape (n, n)
+            The matrix.
+
+        Returns
+        -------
+        callable or None
+            ``r -> M^-1 r`` on arrays of shape (n,).
+        """
 
     def setup(self, A):
         """``(apply, setup_s, fresh)`` for ``A``; ``apply`` is None when impossible. Built once per assembled
-        matrix (an assembler's matrix keeps its identity and counts its versions), else on every call."""
+        matrix (an assembler's matrix keeps its identity and counts its versions), else on every call.
+
+        Parameters
+        ----------
+        A : SystemMatrix or scipy.sparse matrix, shape (n, n)
+            The matrix.
+
+        Returns
+        -------
+        apply : callable or None
+            ``r -> M^-1 r``.
+        setup_s : float
+            Seconds spent building it.
+        fresh : bool
+            Always True here (reusing subclasses report reuse).
+        """
         c = self._cache
         if c is not None and c[0] is A and getattr(A, "pattern", None) is not None and c[1] == A.version:
             return c[2], 0.0, True
@@ -75,16 +111,56 @@ class Preconditioner(ABC):
         return apply, time.perf_counter() - t0, True
 
     def operator(self, A):
-        """``A`` as the Krylov method applies it (``A @ x``): its BSR matrix."""
+        """``A`` as the Krylov method applies it (``A @ x``): its BSR matrix.
+
+        Parameters
+        ----------
+        A : SystemMatrix or scipy.sparse matrix, shape (n, n)
+            The matrix.
+
+        Returns
+        -------
+        scipy.sparse.bsr_matrix
+        """
         return A.bsr
 
     def budget(self, maxiter: int, fresh: bool) -> int:
+        """Iterations a solve may take with the current operator: ``maxiter`` (reusing subclasses lower it).
+
+        Parameters
+        ----------
+        maxiter : int
+            The solver's iteration limit.
+        fresh : bool
+            The operator was built for this solve.
+
+        Returns
+        -------
+        int
+        """
         return maxiter
 
     def record(self, iterations: int, fresh: bool, ok: bool) -> None:
-        """Remember how a solve went (reuse policies use it)."""
+        """Remember how a solve went (reuse policies use it).
+
+        Parameters
+        ----------
+        iterations : int
+            Krylov iterations of the solve.
+        fresh : bool
+            The operator was built for it.
+        ok : bool
+            The solve converged.
+        """
 
     def invalidate(self, stale: bool = False) -> None:
+        """Forget the operator; the next :meth:`setup` builds a new one.
+
+        Parameters
+        ----------
+        stale : bool
+            The operator went stale (used by reusing subclasses).
+        """
         self._cache = None
 
     def describe(self) -> dict:
@@ -92,7 +168,17 @@ class Preconditioner(ABC):
         return {}
 
     def default_maxiter(self, n: int) -> int:
-        """Default Krylov iteration limit for ``n`` unknowns with this preconditioner."""
+        """Default Krylov iteration limit for ``n`` unknowns with this preconditioner.
+
+        Parameters
+        ----------
+        n : int
+            Number of unknowns.
+
+        Returns
+        -------
+        int
+        """
         return max(1000, n)
 
     def __repr__(self) -> str:
@@ -161,7 +247,26 @@ PRECONDITIONERS: dict[str, Callable] = {
 
 
 def make_preconditioner(spec, **options) -> Preconditioner:
-    """A preconditioner from a registered name (with ``options``) or an instance (passed through)."""
+    """A preconditioner from a registered name (with ``options``) or an instance (passed through).
+
+    Parameters
+    ----------
+    spec : str or Preconditioner
+        A key of :data:`PRECONDITIONERS`, or an instance.
+    **options
+        Keyword options of the preconditioner class.
+
+    Returns
+    -------
+    Preconditioner
+
+    Raises
+    ------
+    SceneError
+        ``spec`` is not registered.
+    TypeError
+        Options given with an instance.
+    """
     if isinstance(spec, Preconditioner):
         if options:
             raise TypeError(f"options {sorted(options)} need a preconditioner name, not an instance")

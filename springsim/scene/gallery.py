@@ -25,6 +25,31 @@ def benchmark_cloth_grid(n: int, *, stiffness: float | None = None, damping: flo
     springs ``stiffness`` [N/m] (default 1e4; shear ``stiffness_shear`` if given), bending springs
     ``stiffness_bend`` (default 100), all with damping ``damping`` [N s/m] (default 0); ``pin`` as for
     the grid. ``ke``, ``kd``, ``ke_shear``, ``ke_bend`` are aliases (:data:`springsim.builder.COEFFICIENT_ALIASES`).
+
+    Parameters
+    ----------
+    n : int
+        Particles per side.
+    stiffness, stiffness_shear, stiffness_bend : float, optional
+        Spring stiffnesses [N/m] of the structural, shear and bending springs.
+    damping : float, optional
+        Damping [N s/m] of every spring.
+    total_mass : float
+        Mass of the cloth [kg].
+    pin : str or array_like
+        Fixed particles, as for :meth:`springsim.ModelBuilder.add_cloth_grid`.
+    ke, kd, ke_shear, ke_bend : float, optional
+        Aliases of ``stiffness``, ``damping``, ``stiffness_shear``, ``stiffness_bend``.
+
+    Returns
+    -------
+    dict
+        Keyword arguments of :meth:`springsim.ModelBuilder.add_cloth_grid`.
+
+    Raises
+    ------
+    SceneError
+        A coefficient given under both its name and its alias.
     """
     c = unalias("benchmark_cloth", {"stiffness": stiffness, "ke": ke, "damping": damping, "kd": kd,
                                     "stiffness_shear": stiffness_shear, "ke_shear": ke_shear,
@@ -48,6 +73,13 @@ def benchmark_cloth(n: int, **options):
     ``total_mass``, ``pin``) change it, see :func:`benchmark_cloth_grid`; they are
     validated by :meth:`springsim.ModelBuilder.add_cloth_grid`.
 
+    Parameters
+    ----------
+    n : int
+        Particles per side.
+    **options
+        Keyword arguments of :func:`benchmark_cloth_grid`.
+
     Returns
     -------
     Model
@@ -64,5 +96,14 @@ def accuracy_cloth(n: int):
     Softer than :func:`benchmark_cloth` (bending springs 1e2 N/m as there), so that its fall from
     rest buckles within a second: the motion whose error the accuracy and frame-cost benchmarks
     measure at animation time steps.
+
+    Parameters
+    ----------
+    n : int
+        Particles per side.
+
+    Returns
+    -------
+    Model
     """
     return benchmark_cloth(n, stiffness=1e3, stiffness_shear=1e3, stiffness_bend=1e2)

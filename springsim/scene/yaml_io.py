@@ -465,6 +465,17 @@ def _parse_plot(p, n: int) -> PlotSpec:
 def parse_scene(doc, *, source: str = "<string>") -> Scene:
     """Build a :class:`Scene` from an already-parsed YAML document (a dict).
 
+    Parameters
+    ----------
+    doc : dict
+        The parsed YAML document.
+    source : str
+        Name of the document's origin (file path) for error messages.
+
+    Returns
+    -------
+    Scene
+
     Raises
     ------
     SceneError

@@ -255,7 +255,7 @@ def test_stiffness_sweep_quick(tmp_path):
     (tmp_path / "stiffness_sweep.png").unlink()
     assert sw.main(["--replot", "--out", str(tmp_path)]) == 0  # the plot again, from the CSV alone
     assert (tmp_path / "stiffness_sweep.png").stat().st_size > 1000
-    # with the shipped sweep's rows merged in (docs/stiffness_sweep.csv, the data of the plot in BENCHMARKS.md)
+    # with the shipped sweep's rows merged in (docs/stiffness_sweep.csv, the data of the plot in BENCHMARKS.md#stiffness-sweep)
     shipped = Path(__file__).resolve().parents[2] / "docs" / "stiffness_sweep.csv"
     assert sw.main(["--replot", "--out", str(tmp_path), "--merge", str(shipped)]) == 0
 
