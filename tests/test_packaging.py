@@ -36,10 +36,14 @@ def _this_springsim_env(**extra) -> dict:
 
 def test_springsim_is_imported_from_where_it_is_installed():
     """With a non-editable install the tests import the installed package, not the checkout's ``springsim/``."""
+    import site
+
     pkg = Path(springsim.__file__).resolve().parent
-    try:
-        dist = importlib.metadata.distribution("springsim")
-    except importlib.metadata.PackageNotFoundError:  # not installed: a source tree on PYTHONPATH
+    # the installation's metadata, from the environment's site directories only (a build's springsim.egg-info in the
+    # checkout, on sys.path under ``python -m pytest``, is not an installation)
+    sites = [*site.getsitepackages(), site.getusersitepackages()]
+    dist = next(iter(importlib.metadata.distributions(name="springsim", path=sites)), None)
+    if dist is None:  # not installed: a source tree on PYTHONPATH
         assert (pkg.parent / "pyproject.toml").is_file(), pkg
         return
     direct_url = dist.read_text("direct_url.json")

@@ -154,12 +154,11 @@ class ImplicitIntegrator(Integrator):
         check_count("retake_halvings", retake_halvings + 1)
         self.retake_halvings = int(retake_halvings)
         self.on_nonconvergence = on_nonconvergence
-        self.options = StageOptions(stage_solver=stage_solver, jacobian=jacobian, newton_maxiter=int(newton_maxiter),
+        self.options = StageOptions(stage_solver=stage_solver, jacobian=jacobian, newton_maxiter=newton_maxiter,
                                     newton_tol=float(newton_tol), residual_rtol=float(residual_rtol),
                                     force_rtol=float(force_rtol), force_atol=float(force_atol),
                                     line_search=bool(line_search), min_step=float(min_step),
-                                    escalate_jacobian=bool(escalate_jacobian),
-                                    escalate_after=None if escalate_after is None else int(escalate_after),
+                                    escalate_jacobian=bool(escalate_jacobian), escalate_after=escalate_after,
                                     forcing=forcing, forcing_max=float(forcing_max))
         self.stage = StageSolver(self.system, self.options)
         self.filter_estimates = self.has_error_estimate and bool(

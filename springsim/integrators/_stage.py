@@ -271,8 +271,10 @@ class StageOptions:
         if not 0.0 < self.min_step <= 1.0:
             raise SceneError("min_step", f"must be in (0, 1], got {self.min_step}")
         check_count("newton_maxiter", self.newton_maxiter)
+        object.__setattr__(self, "newton_maxiter", int(self.newton_maxiter))
         if self.escalate_after is not None:
             check_count("escalate_after", self.escalate_after)
+            object.__setattr__(self, "escalate_after", int(self.escalate_after))
 
 
 class StageSolver:

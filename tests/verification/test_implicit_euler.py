@@ -60,7 +60,7 @@ def test_linearized_equals_one_newton_iteration():
     model = damped_chain()
     lin = make_integrator("linearized_implicit", model, solver="direct", jacobian="exact")
     one = make_integrator("implicit_euler", model, solver="direct", jacobian="exact", newton_maxiter=1,
-                          line_search=False, on_nonconvergence="ignore")
+                          line_search=False, retake_halvings=0, on_nonconvergence="ignore")
     a = simulate(model, lin, 0.02, 20)
     b = simulate(model, one, 0.02, 20)
     np.testing.assert_allclose(a.q, b.q, rtol=0, atol=1e-14)
@@ -111,7 +111,8 @@ def test_nonconvergence_is_reported():
     from springsim.errors import ConvergenceWarning, SimulationError, SolverError
 
     model = damped_chain()
-    integ = make_integrator("implicit_euler", model, solver="direct", newton_tol=1e-14, newton_maxiter=1)
+    integ = make_integrator("implicit_euler", model, solver="direct", stage_solver="residual", newton_tol=1e-14,
+                            newton_maxiter=1, retake_halvings=0)
     st = integ.step(model.state(), model.state(), 0.05)
     assert not st.ok and not st.newton_converged and st.newton_iterations == 1
     assert st.failures and st.failures[0].startswith("Newton did not converge in 1 iterations")
@@ -121,8 +122,8 @@ def test_nonconvergence_is_reported():
     assert sum(not s.ok for s in tr.stats) == 10 and tr.summary()["failed_steps"] == 10
     conv = [w for w in caught if issubclass(w.category, ConvergenceWarning)]
     assert len(conv) == 1 and "10 of 10 step(s)" in str(conv[0].message)
-    integ = make_integrator("implicit_euler", model, solver="direct", newton_tol=1e-14, newton_maxiter=1,
-                            on_nonconvergence="raise")
+    integ = make_integrator("implicit_euler", model, solver="direct", stage_solver="residual", newton_tol=1e-14,
+                            newton_maxiter=1, retake_halvings=0, on_nonconvergence="raise")
     with pytest.raises(SolverError, match="did not converge"):
         integ.step(model.state(), model.state(), 0.05)
     with pytest.raises(SimulationError, match="step 1 .*did not converge") as err:
@@ -142,7 +143,8 @@ def test_projected_jacobian_escalates_to_exact_when_newton_stalls(name):
     The exact mode never escalates."""
     model = damped_chain()
     s0 = model.state()
-    kw = dict(solver="direct", newton_tol=1e-11, newton_maxiter=4, on_nonconvergence="ignore")
+    kw = dict(solver="direct", stage_solver="residual", newton_tol=1e-11, newton_maxiter=4, retake_halvings=0,
+              on_nonconvergence="ignore")
     results = {}
     for mode, escalate in [("spd", True), ("spd", False), ("exact", True)]:
         if mode == "exact":
@@ -163,7 +165,8 @@ def test_escalate_after_switches_early_and_is_validated():
     from springsim.errors import SceneError
 
     model = damped_chain()
-    kw = dict(solver="direct", jacobian="spd", newton_tol=1e-11, newton_maxiter=30, on_nonconvergence="ignore")
+    kw = dict(solver="direct", jacobian="spd", stage_solver="residual", newton_tol=1e-11, newton_maxiter=30,
+              on_nonconvergence="ignore")
     late = make_integrator("implicit_euler", model, **kw).step(model.state(), model.state(), 0.05)
     early = make_integrator("implicit_euler", model, escalate_after=2, **kw).step(model.state(), model.state(), 0.05)
     assert early.newton_converged and early.extra["jacobian_escalations"] == 1
