@@ -22,13 +22,15 @@ multistep history is reused, see :class:`~springsim.integrators.bdf2.StepHistory
 A failed attempt (a step that is not ``StepStats.ok``: Newton missed its limit, a linear
 solve failed, the matrix lost the masses; a :class:`~springsim.errors.SolverError`; a
 blow-up by NaN/inf or the energy bound of :mod:`springsim.energy`) is retried with ``h/4``.
-Failing at ``h_min`` raises :class:`~springsim.errors.SimulationError` with the frames so far,
-as a fixed-step run does (:mod:`springsim.driver`).
+Failing at ``h_min``, or missing the tolerance there, raises :class:`~springsim.errors.SimulationError`
+with the frames so far, as a fixed-step run does (:mod:`springsim.driver`): a step is never accepted
+with an error above the tolerance.
 
 Output frames at the requested times come from cubic Hermite interpolation of ``q`` between
 the two step ends (values ``q``, slopes ``qd``); velocities are the derivative of that cubic.
 A frame time that coincides with a step end (within ``1e-12`` relative) takes that state
-exactly; the last step is shortened to land on ``t_end``.
+exactly; the last step is shortened to land on ``t_end`` (where less than ``h_min`` would remain after a
+step, the remainder is split into two equal steps, never one step longer than the controller proposed).
 """
 
 from __future__ import annotations
@@ -198,8 +200,11 @@ def simulate_adaptive(model: Model, integrator: str | Integrator, t_end: float, 
                     raise SimulationError(f"adaptive stepping exceeded max_steps={max_steps} at t={t:g} s; "
                                           f"{run.kept()}",
                                           run.trajectory(keep_last=True), step=info["accepted"])
-                if t + h >= t_end * (1 - 1e-12) or t_end - (t + h) < h_min:
-                    h = t_end - t  # the last step lands on t_end
+                remaining = t_end - t
+                if h >= remaining * (1 - 1e-12):
+                    h = remaining  # the last step lands on t_end
+                elif remaining - h < h_min:
+                    h = 0.5 * remaining  # two steps to t_end, not one stretched beyond the proposed size
                 st: StepStats | None = None
                 why: str | None
                 try:
@@ -233,8 +238,13 @@ def simulate_adaptive(model: Model, integrator: str | Integrator, t_end: float, 
                 if error_on == "qv":
                     err = np.sqrt(0.5 * (err**2 + _error_norm(system, ev, v0, v1, time_rtol, time_atol)**2))
                 fac = safety * err**expo if err > 0 else grow
-                if err > 1.0 and h > h_min * (1 + 1e-12):
+                if err > 1.0:
                     info["rejected"] += 1
+                    if h <= h_min * (1 + 1e-12):  # never accepted as if it had met the tolerance
+                        raise SimulationError(f"adaptive stepping cannot meet the tolerance at t={t:g} s: the local "
+                                              f"error is {err:.3g} times time_rtol/time_atol at h = h_min = "
+                                              f"{h_min:g} s; loosen the tolerance or lower h_min; {run.kept()}",
+                                              run.trajectory(keep_last=True), step=info["accepted"])
                     h = max(h_min, h * min(0.9, max(shrink, fac)))
                     just_rejected = True
                     continue

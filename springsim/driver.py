@@ -37,7 +37,8 @@ import numpy as np
 from ._npz import read_trajectory_npz
 from ._atomic import _new_file_mode, _target, check_output_path, save_npz_atomic  # noqa: F401 (re-exported)
 from .energy import EnergyBound
-from .errors import (ConvergenceWarning, FallbackWarning, SimulationError, SimulationInterrupted, SpringsimError)
+from .errors import (ConvergenceWarning, EnergyGrowthWarning, FallbackWarning, SimulationError, SimulationInterrupted,
+                     SpringsimError)
 from .integrators import Integrator, StepStats
 from .model import Model, State
 from ._threads import single_blas_thread
@@ -46,6 +47,10 @@ from .progress import as_progress
 
 __all__ = ["Trajectory", "TRAJECTORY_FORMAT", "TRAJECTORY_FORMAT_VERSION", "run_metadata", "simulate", "SimulationInterrupted", "save_npz_atomic", "check_output_path",
            "RunRecorder", "steps_for_duration", "MAX_STEPS"]
+
+#: Energy rise over a run, in units of the start's energy scale (:class:`springsim.energy.EnergyBound`), above which a
+#: conservative or damped scene is reported as unstable (:meth:`RunRecorder.check_energy_growth`).
+ENERGY_GROWTH = 1e-2
 
 #: ``meta["format"]`` of a saved trajectory, and the layout version this springsim writes.
 TRAJECTORY_FORMAT = "springsim-trajectory"
@@ -350,12 +355,40 @@ class RunRecorder:
                                f"{self.kept()}", self.trajectory(keep_last=True), step=step)
 
     def finish(self) -> Trajectory | None:
-        """The trajectory (None on processes other than the root), after reporting failed steps and fallbacks
-        once (warnings, on the root)."""
+        """The trajectory (None on processes other than the root), after reporting energy growth, failed steps and
+        fallbacks once (warnings, on the root)."""
         traj = self.trajectory()
         if traj is not None:
+            self.check_energy_growth(traj)
             report(traj, self.integrator, stacklevel=4)
         return traj
+
+    def check_energy_growth(self, traj: Trajectory) -> None:
+        """Warn once (:class:`~springsim.errors.EnergyGrowthWarning`) when the recorded frames of a scene whose
+        forces all conserve or dissipate energy rise above the first frame's energy by more than
+        :data:`ENERGY_GROWTH` of the start's energy scale, and in a damped scene fail the step of that frame.
+
+        Only the recorded frames are checked (no cost per step); the energy bound catches the larger blow-ups on
+        every step. Bounded oscillations of a symplectic method stay below the threshold."""
+        terms = self.system.terms
+        if self.bound is None or traj.frame_count < 2 or not all(t.conservative or t.dissipative for t in terms):
+            return
+        from .energy import total_energy
+
+        energy = total_energy(self.model, traj.q, traj.qd)
+        rise = energy - energy[0]
+        k = int(np.argmax(rise))
+        if not rise[k] > ENERGY_GROWTH * self.bound.scale:
+            return
+        damped = bool(np.any(self.model.spring_damping > 0) or np.any(self.model.particle_drag > 0))
+        msg = (f"{self.integrator.name}: the energy rose from {energy[0]:.4g} J to {energy[k]:.4g} J (t={traj.t[k]:g} "
+               f"s) in a scene whose forces {'dissipate' if damped else 'conserve'} it: an instability; try a "
+               f"smaller time step{' or an implicit integrator' if not self.integrator.implicit else ''}")
+        if damped and traj.stats:
+            step = min(max(int(round(traj.t[k] / max(self.time, 1e-300) * len(traj.stats))), 1), len(traj.stats))
+            traj.stats[step - 1].fail(msg)
+        if getattr(self.integrator, "on_nonconvergence", "warn") != "ignore":
+            warnings.warn(msg, EnergyGrowthWarning, stacklevel=5)
 
 
 def report(traj: Trajectory, integrator, stacklevel: int = 2) -> None:

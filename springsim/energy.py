@@ -125,6 +125,8 @@ class EnergyBound:
         extent = float(np.linalg.norm(np.ptp(q0, axis=0))) if q0.shape[0] else 0.0
         scale = (abs(self.e0) + t0 + sum(abs(p) for p in parts) - floor
                  + float(self._mass.sum()) * abs(model.gravity) * max(extent, 1.0))
+        #: The energy scale of the start [J] (module docstring).
+        self.scale = scale
         self.limit = self.w_max + growth * scale
         # the work W of the state arrays of a system (:mod:`springsim.system`): its particles' kinetic energy and
         # unbounded potentials, summed over every process, plus the constant part of the particles it leaves out

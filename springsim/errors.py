@@ -10,7 +10,7 @@ with a one-line message naming the field or parameter. An interrupted run raises
 
 from __future__ import annotations
 
-__all__ = ["SpringsimError", "SceneError", "SceneTypeError", "SimulationError", "SolverError",
+__all__ = ["EnergyGrowthWarning", "SpringsimError", "SceneError", "SceneTypeError", "SimulationError", "SolverError",
            "SimulationInterrupted", "SpringsimWarning", "ConvergenceWarning", "FallbackWarning",
            "NewtonConvergenceWarning", "UnusedOptionWarning", "registered"]
 
@@ -139,6 +139,12 @@ class FallbackWarning(SpringsimWarning, RuntimeWarning):
 
     Emitted once per run by the drivers with the count; reasons in ``StepStats.fallbacks``.
     """
+
+
+class EnergyGrowthWarning(SpringsimWarning, RuntimeWarning):
+    """The energy of a scene whose forces all conserve or dissipate it grew during a run: an instability of the
+    integrator at that step (the exact motion never gains energy). Emitted once per run by the drivers; in a
+    damped scene the step where it happened is also failed (:attr:`~springsim.integrators.StepStats.failures`)."""
 
 
 class UnusedOptionWarning(SpringsimWarning):

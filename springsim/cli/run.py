@@ -17,7 +17,7 @@ import threading
 import warnings
 from pathlib import Path
 
-from ..errors import SimulationError, SimulationInterrupted, SpringsimError, SpringsimWarning
+from ..errors import EnergyGrowthWarning, SimulationError, SimulationInterrupted, SpringsimError, SpringsimWarning
 from ..options import BACKENDS, MAX_STEPS, SolverConfig
 from .argtypes import int_at_least
 
@@ -168,8 +168,9 @@ def execute(scene, cfg, *, record: bool = True, frame_every: int = 1, progress=T
 
         raise SceneError("solver.timestep", "missing: give solver.timestep or --dt")
     steps = cfg.run_steps()
-    with warnings.catch_warnings():
+    with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("ignore", SpringsimWarning)  # reported in the CLI's own lines
+        warnings.simplefilter("always", EnergyGrowthWarning)  # ... this one by the line below
         with phase(f"setting up {cfg.integrator}"):
             integrator = cfg.make_integrator(scene.model)
         unused = cfg.unused(integrator)
@@ -191,6 +192,9 @@ def execute(scene, cfg, *, record: bool = True, frame_every: int = 1, progress=T
         else:
             traj = simulate(scene.model, integrator, cfg.dt, steps, frame_every=frame_every, record=record,
                             progress=progress)
+    for w in caught:
+        if issubclass(w.category, EnergyGrowthWarning) and not quiet:
+            print(f"springsim: warning: {w.message}", file=sys.stderr)
     return integrator, traj
 
 

@@ -149,3 +149,32 @@ def test_a_step_without_an_estimate_is_a_failed_attempt(monkeypatch):
     monkeypatch.setattr(type(integ), "step", step)
     tr = simulate_adaptive(model, integ, 0.1, time_rtol=1e-3, time_atol=1e-3, h0=0.02)
     assert tr.adaptive_stats["failed_attempts"] == 1 and calls[1] == pytest.approx(calls[0] / 4)
+
+
+def test_unreachable_tolerance_stops_promptly_with_an_error(tmp_path):
+    """``springsim run scenes/spring.yaml --integrator tr_bdf2 --time-rtol 1e-300 --duration 1e-4 --dt 1e-4`` ends
+    at once with exit 1 and one 'cannot meet the tolerance' line (it used to stretch the last step to the end, get
+    it rejected, shrink it to h_min and stretch it again, without end)."""
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    scene = Path(__file__).resolve().parents[2] / "scenes" / "spring.yaml"
+    t0 = time.monotonic()
+    r = subprocess.run([sys.executable, "-m", "springsim", "run", str(scene), "--integrator", "tr_bdf2",
+                        "--time-rtol", "1e-300", "--duration", "0.0001", "--dt", "0.0001"],
+                       capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert time.monotonic() - t0 < 60
+    assert r.returncode == 1 and "cannot meet the tolerance" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_steps_at_h_min_that_miss_the_tolerance_are_not_accepted():
+    """A step forced to h_min whose error is above the tolerance is never accepted as if it had met it: the run
+    stops with SimulationError naming h_min, the frames before it kept (h_min = 2^-6 s, time_rtol = 1e-13)."""
+    from springsim.errors import SimulationError
+
+    model = _oscillator()
+    with pytest.raises(SimulationError, match="cannot meet the tolerance") as e:
+        simulate_adaptive(model, "tr_bdf2", 1.0, h_min=2.0 ** -6, h0=2.0 ** -6, time_rtol=1e-13, time_atol=1e-13)
+    assert "h_min" in str(e.value) and e.value.trajectory.frame_count >= 1
