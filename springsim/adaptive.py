@@ -188,6 +188,8 @@ def simulate_adaptive(model: Model, integrator: str | Integrator, t_end: float, 
     t = 0.0
     just_rejected = False
     attempts = 0
+    guard = integrator.exclusive()  # one thread at a time: an integrator keeps state between steps
+    guard.__enter__()
     estimating, retake = integrator.estimating, getattr(integrator, "retake", False)
     integrator.estimating = True  # restored when the run ends
     if retake:
@@ -283,6 +285,7 @@ def simulate_adaptive(model: Model, integrator: str | Integrator, t_end: float, 
         integrator.estimating = estimating
         if retake:
             integrator.retake = True
+        guard.__exit__(None, None, None)
     return run.finish()
 
 

@@ -456,6 +456,13 @@ def simulate(model: Model, integrator: Integrator, dt: float, steps: int, *, sta
     dt = _positive_time("dt", dt)
     steps = _count("steps", steps, 0)
     frame_every = _count("frame_every", frame_every, 1)
+    _check_integrator(model, integrator)
+    with integrator.exclusive():  # one thread at a time: an integrator keeps state between steps
+        return _simulate(model, integrator, dt, steps, state, frame_every, record, progress, check_energy)
+
+
+def _simulate(model, integrator, dt, steps, state, frame_every, record, progress, check_energy):
+    """:func:`simulate` once its arguments are checked and the integrator is held."""
     run = RunRecorder(model, integrator, state, check_energy=check_energy)
     progress = as_progress(progress) if run.is_root else None
     run.meta.update(dt=dt, steps=steps, frame_every=frame_every)

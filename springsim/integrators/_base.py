@@ -7,12 +7,16 @@ An integrator is built with the model (and, for implicit ones, a linear solver);
 
 from __future__ import annotations
 
+import contextlib
+import functools
+import threading
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from typing import ClassVar
 
 import numpy as np
 
+from ..errors import SpringsimError
 from ..system import SerialSystem
 
 __all__ = ["Integrator", "StepStats", "PRECISION_LOSS_LIMIT"]
@@ -118,6 +122,15 @@ class StepStats:
         self.failures = []
 
 
+def _exclusive(step):
+    """``step`` holding the integrator (:meth:`Integrator.exclusive`) while it runs."""
+    @functools.wraps(step)
+    def guarded(self, state_in, state_out, dt):
+        with self.exclusive():
+            return step(self, state_in, state_out, dt)
+    return guarded
+
+
 class Integrator(ABC):
     """Base class. Subclasses set :attr:`name` and implement :meth:`step`.
 
@@ -156,7 +169,13 @@ class Integrator(ABC):
         "line_search", "min_step", "escalate_jacobian", "escalate_after", "forcing", "forcing_max",
         "filter_estimates", "stage_solver", "force_rtol", "force_atol", "retake_halvings"})
 
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        if "step" in cls.__dict__ and not getattr(cls.__dict__["step"], "__isabstractmethod__", False):
+            cls.step = _exclusive(cls.__dict__["step"])
+
     def __init__(self, model, *, system=None, terms=None, force_kernels: str = "auto", **system_options):
+        self._busy = threading.RLock()
         self.model = model
         if system is None:
             system = SerialSystem(model, terms=terms, force_kernels=force_kernels, **system_options)
@@ -187,6 +206,22 @@ class Integrator(ABC):
         a = np.multiply(self._f, self._inv_mass, out=self._a)
         a[self.fixed] = 0.0  # not inf * 0 = NaN when a force overflows on a fixed particle
         return a
+
+    @contextlib.contextmanager
+    def exclusive(self):
+        """Hold this integrator for one thread while the block runs (a run, a step).
+
+        An integrator keeps state between steps (buffers, warm starts, multistep history, the energy of its run), so
+        it is not safe to share between threads: use one integrator per thread. Using one from a second thread while
+        another holds it raises :class:`~springsim.errors.SpringsimError` at once, never a wrong answer.
+        """
+        if not self._busy.acquire(blocking=False):
+            raise SpringsimError(f"the {self.name} integrator is in use by another thread; integrators keep state "
+                                 f"between steps: build one per thread (make_integrator)")
+        try:
+            yield self
+        finally:
+            self._busy.release()
 
     def blowup_hint(self) -> str:
         """Advice for a run of this integrator that blew up (part of the drivers' error message)."""

@@ -324,3 +324,40 @@ def test_energy_growth_of_a_damped_or_conservative_scene_is_reported():
         assert len(grew) == int(unstable), (name, [str(w.message) for w in grew])
         failed = tr.summary()["failed_steps"]
         assert failed == int(unstable and model is damped), (name, failed)
+
+
+def test_an_integrator_shared_by_two_threads_is_refused_not_wrong():
+    """A run of an integrator while another thread holds it (its run is mid-step here) raises SpringsimError at once
+    in the second thread, for simulate, simulate_adaptive and a direct step; the first run finishes unaffected, equal
+    to a run alone."""
+    import threading
+
+    from springsim import simulate_adaptive
+    from springsim.errors import SpringsimError
+
+    m = _chain()
+    integ = make_integrator("tr_bdf2", m, solver="direct")
+    alone = simulate(m, make_integrator("tr_bdf2", m, solver="direct"), 0.01, 5)
+    inside, release = threading.Event(), threading.Event()
+    original = integ.advance
+
+    def slow_advance(q, v, h, stats):
+        inside.set()
+        release.wait(30)
+        return original(q, v, h, stats)
+
+    integ.advance = slow_advance
+    result = {}
+    worker = threading.Thread(target=lambda: result.setdefault("traj", simulate(m, integ, 0.01, 5)))
+    worker.start()
+    assert inside.wait(30)
+    try:
+        for attempt in (lambda: simulate(m, integ, 0.01, 2),
+                        lambda: simulate_adaptive(m, integ, 0.05, time_rtol=1e-3, time_atol=1e-3),
+                        lambda: integ.step(m.state(), m.state(), 0.01)):
+            with pytest.raises(SpringsimError, match="in use by another thread"):
+                attempt()
+    finally:
+        release.set()
+        worker.join(60)
+    np.testing.assert_array_equal(result["traj"].q, alone.q)
