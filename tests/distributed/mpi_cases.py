@@ -54,7 +54,8 @@ def trajectory_forcing(scene, dt, steps, out):
     from .scenes import scene as make
 
     traj = simulate_distributed(make(scene), "implicit_euler", float(dt), int(steps), linear_rtol=1e-10,
-                                jacobian="spd", newton_tol=1e-9, newton_maxiter=20, forcing="eisenstat-walker",
+                                jacobian="spd", stage_solver="residual", newton_tol=1e-9, newton_maxiter=20,
+                                forcing="eisenstat-walker",
                                 on_nonconvergence="ignore")
     if traj is not None:
         np.savez(out, q=traj.q, ok=[s.ok for s in traj.stats], linres=[s.linear_residual for s in traj.stats])
