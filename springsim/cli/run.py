@@ -261,8 +261,8 @@ def summary_lines(scene, cfg, integrator, traj) -> list[tuple[str, str]]:
         else:
             chosen = f" -> {solver.last_choice}: {solver.last_reason}" if getattr(solver, "last_choice", None) else ""
             linear = f"linear solver {solver.name}{chosen}"
-        rows.append(("integrator", f"{cfg.integrator} ({linear}, {integrator.stage_solver} stages, "
-                                   f"jacobian {integrator.jacobian})"))
+        stages = f"{integrator.stage_solver} stages" if integrator.converges else "one Newton step per step"
+        rows.append(("integrator", f"{cfg.integrator} ({linear}, {stages}, jacobian {integrator.jacobian})"))
     else:
         rows.append(("integrator", cfg.integrator))
     meta = traj.meta

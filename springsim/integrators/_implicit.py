@@ -116,6 +116,8 @@ class ImplicitIntegrator(Integrator):
     default_filter_estimates = True
     #: The stage rules the method's stages admit, the first its default where the forces allow it
     stage_solvers: tuple = ("minimize", "residual", "pa2")
+    #: Whether the method solves its stages to convergence (False: a fixed number of plain Newton iterations)
+    converges: bool = True
 
     def __init__(self, model, *, system=None, solver="auto", jacobian: str | None = None,
                  stage_solver: str | None = None, newton_tol: float = 1e-5, newton_maxiter: int | None = None,

@@ -34,6 +34,7 @@ class IntegratorLinearizedImplicit(ImplicitIntegrator):
     a potential or dissipates) is not ``ok`` and is retaken in substeps like a failed stage."""
 
     name = "linearized_implicit"
+    converges = False  # one plain Newton iteration
     # one plain Newton iteration: no stopping rule, line search or escalation
     unused_options = frozenset({"newton_tol", "newton_maxiter", "residual_rtol", "line_search", "min_step",
                                 "escalate_jacobian", "escalate_after", "forcing", "forcing_max", "filter_estimates",
