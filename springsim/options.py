@@ -167,7 +167,7 @@ class SolverConfig:
     force_rtol: float | None = option(None, kind="float", cli="--force-rtol", metavar="R", lo=0.0, strict=True,
                                       to="integrator",
                                       help="minimize stages: stop when the force imbalance |grad E| is below this "
-                                           "fraction of the stage's force scale (default 1e-6)")
+                                           "fraction of the stage's force scale (default 1e-5)")
     force_atol: float | None = option(None, kind="float", cli="--force-atol", metavar="F", lo=0.0,
                                       to="integrator",
                                       help="minimize stages: absolute force imbalance tolerance [N] (default 0)")

@@ -67,7 +67,7 @@ class ImplicitIntegrator(Integrator):
     force_rtol, force_atol : float
         Stopping rule of ``"minimize"``: ``|grad E|_2 <= force_atol + force_rtol f_ref`` [N], with ``f_ref`` the
         forces the stage balances at the iterate (inertia, applied force, and the weight as a floor; default
-        ``1e-6`` and ``0``).
+        ``1e-5`` and ``0``).
     newton_tol : float
         Update tolerance of ``"residual"`` and ``"pa2"``: a stage may stop when ``|dv|_2 < newton_tol`` [m/s]
         (PA2: 1e-5).
@@ -121,7 +121,7 @@ class ImplicitIntegrator(Integrator):
 
     def __init__(self, model, *, system=None, solver="auto", jacobian: str | None = None,
                  stage_solver: str | None = None, newton_tol: float = 1e-5, newton_maxiter: int | None = None,
-                 residual_rtol: float = 1e-3, force_rtol: float = 1e-6, force_atol: float = 0.0,
+                 residual_rtol: float = 1e-3, force_rtol: float = 1e-5, force_atol: float = 0.0,
                  on_nonconvergence: str = "warn", solver_options: dict | None = None, line_search: bool = True,
                  min_step: float | None = None, escalate_jacobian: bool = True, escalate_after: int | None = None,
                  forcing: str = "fixed", forcing_max: float = 0.1, retake_halvings: int = 3,

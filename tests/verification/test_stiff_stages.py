@@ -56,7 +56,7 @@ def test_minimize_stage_meets_the_gradient_criterion_at_its_result():
     """The implicit Euler step returned by a minimize stage balances its forces: the gradient of the incremental
     potential, recomputed here from the result (``grad E = M (v1 - v0)/h - F(q1, v1)`` with the damping along the
     directions of the predictor ``q0 + h v0``), is within the stage's own tolerance, ``force_rtol`` times the
-    forces it balances (1e-6 by default; damped 8 x 8 cloth, ke = 1e6, from a perturbed state)."""
+    forces it balances (1e-5 by default; damped 8 x 8 cloth, ke = 1e6, from a perturbed state)."""
     model = benchmark_cloth(8, stiffness=1e6, damping=2.0)
     rng = np.random.default_rng(2718)
     s0, s1 = model.state(), model.state()
@@ -75,7 +75,7 @@ def test_minimize_stage_meets_the_gradient_criterion_at_its_result():
     grad = (m * (v1 - v0) / H - f)[free]
     scale = np.linalg.norm((m * (v1 - v0))[free]) / H + np.linalg.norm(f[free]) + np.linalg.norm(
         (m * model.gravity_vector)[free])
-    assert np.linalg.norm(grad) <= 1e-6 * scale * 1.001
+    assert np.linalg.norm(grad) <= 1e-5 * scale * 1.001
     assert np.linalg.norm(grad) == pytest.approx(st.extra["gradient_norm"], rel=1e-6, abs=1e-12)
 
 
