@@ -65,7 +65,7 @@ def make_integrator(name: str, model: Model, **options) -> Integrator:
     unused = sorted(k for k, v in options.items() if k in cls.unused_options and v is not None)
     integ = cls(model, **{k: v for k, v in options.items() if k not in cls.unused_options})
     ignored = getattr(integ, "ignored_options", frozenset)()
-    unused += sorted(k for k, v in options.items() if k in ignored and v is not None)
+    unused = sorted(set(unused) | {k for k, v in options.items() if k in ignored and v is not None})
     if unused:
         rule = f" with {integ.stage_solver} stages" if ignored & set(unused) else ""
         warnings.warn(f"{name}{rule} does not use the option(s) {', '.join(unused)}; ignored", UnusedOptionWarning,

@@ -127,7 +127,7 @@ def test_reference_agrees_with_springsim_at_tiny_steps(bench):
     name = "tr_bdf2" if "tr_bdf2" in INTEGRATORS else "midpoint"
     for case in (c.scene_case("spring", 0.1), c.benchmark_case(4, 0.1)):
         q_ref, _, _, _ = c.reference_final(case, method="Radau", cache=False)
-        tr = simulate(case.model, make_integrator(name, case.model, newton_tol=1e-10, newton_maxiter=10),
+        tr = simulate(case.model, make_integrator(name, case.model, force_rtol=1e-10, newton_maxiter=10),
                       1 / 4000, 400, record=False)
         rms, mx = c.position_errors(tr.q[-1], q_ref, case.size)
         assert mx < 1e-5, (case.name, mx)

@@ -114,7 +114,7 @@ def test_compiled_forces_keep_the_implicit_trajectories(method):
     m = benchmark_cloth(24, kd=0.05)
     runs = {}
     for k in ("numpy", "numba"):
-        integ = make_integrator(method, m, solver="direct", newton_tol=1e-10, newton_maxiter=50, force_kernels=k)
+        integ = make_integrator(method, m, solver="direct", force_rtol=1e-10, newton_maxiter=50, force_kernels=k)
         assert [t.kernels for t in integ.terms if t.name == "spring"] == [k]
         runs[k] = simulate(m, integ, BENCHMARK_DT, 20)
         assert all(st.newton_converged for st in runs[k].stats)

@@ -129,8 +129,8 @@ def test_nonconvergence_is_reported():
     with pytest.raises(SimulationError, match="step 1 .*did not converge") as err:
         simulate(model, integ, 0.05, 10)
     assert isinstance(err.value.__cause__, SolverError) and err.value.trajectory.frame_count == 1
-    quiet = make_integrator("implicit_euler", model, solver="direct", newton_tol=1e-14, newton_maxiter=1,
-                            on_nonconvergence="ignore")
+    quiet = make_integrator("implicit_euler", model, solver="direct", stage_solver="residual", newton_tol=1e-14,
+                            newton_maxiter=1, retake_halvings=0, on_nonconvergence="ignore")
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert simulate(model, quiet, 0.05, 3).summary()["failed_steps"] == 3
