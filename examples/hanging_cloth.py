@@ -6,7 +6,7 @@ the flat cloth: the pleats are slack, not compressed). It swings down under grav
 drag, and hangs in folds from its sagging top edge. TR-BDF2 (second order, L-stable) integrates it
 at the animation step h = 1/60 s; the linear solver is ``auto`` (sparse direct at this size).
 
-    python examples/hanging_cloth.py               # 24 x 24 cloth, 3 s of motion: ~25 s on 1 core
+    python examples/hanging_cloth.py               # 24 x 24 cloth, 3 s of motion: ~40 s on 1 core
     python examples/hanging_cloth.py --tiny        # 6 x 6 cloth, 0.2 s (what the tests run)
 
 Writes ``hanging_cloth.png`` (the last frame) and ``hanging_cloth.gif`` (under 500 kB) to ``--out-dir``.
