@@ -433,9 +433,14 @@ class StageSolver:
                 # is far stiffer than E): E's exact Hessian (symmetric mode, the damping frozen), positive definite
                 # near a minimum, where it gives a descent direction
                 A = self._assemble(q, v, c, "symmetric", stats, geometry=geometry)
-                res = self._linear_solve(A, R, stats, first=False, rtol=rtol)
-                dv = res.x
-                slope = -sysm.dot(R, dv) if sysm.all_finite(dv) else 0.0
+                failed = list(self._failed)
+                try:
+                    res = self._linear_solve(A, R, stats, first=False, rtol=rtol)
+                    dv = res.x
+                    slope = -sysm.dot(R, dv) if res.converged else 0.0
+                except SolverError:  # singular where E is not convex: the projected Hessian instead
+                    slope = 0.0
+                self._failed = failed  # a failed try is no failure of the stage: the projected one follows
                 exact = slope < 0.0
                 stats.extra["exact_hessian_steps"] = stats.extra.get("exact_hessian_steps", 0) + exact
             if not exact:
@@ -471,6 +476,7 @@ class StageSolver:
                 # E fell by more than its quadratic model allows (half the slope): negative curvature the
                 # projection removed (a buckling cloth); follow it with longer steps while E keeps falling
                 v_try, q_try, trial, alpha = self._expand(v, dv, q_hat, v_hat, c, geometry, f, trial, v_try, q_try)
+                stats.extra["longer_steps"] = stats.extra.get("longer_steps", 0) + (alpha > 1.0)
             stats.extra["min_line_search_step"] = min(alpha, stats.extra.get("min_line_search_step", 1.0))
             if stagnated and not (trial[2] <= gnorm if by_gradient else trial[0] <= E + noise):
                 # no decrease to find at the smallest step: round-off (or a wrong direction); keep the iterate
@@ -515,7 +521,6 @@ class StageSolver:
                 break
             alpha, v_try, q_try, trial = 2.0 * alpha, v2, q2, t2
             f[...] = f2
-        self.expansions = getattr(self, "expansions", 0) + (alpha > 1.0)
         return v_try, q_try, trial, alpha
 
     # -- Newton on the residual (residual and pa2 rules, and every plain iteration) ---------------------------------
