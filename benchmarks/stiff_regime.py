@@ -41,15 +41,16 @@ the size. Writes ``results/stiff_regime.csv``, ``results/stiff_regime.md`` and `
 each substep costs ~ ``n^2``; ``C`` fitted to the measured symplectic Euler points; stars where an
 implicit method's line crosses the trend, hollow where that crossing is extrapolated beyond the measured
 ke, with the implicit cost held at its nearest measured value). The frame-cost runs of every ``(n, ke)``
-are kept in ``results/stiff_regime/n<n>_ke<ke>/`` and their references cached as usual. A new run keeps the
-rows of other ``(n, ke)`` already in ``stiff_regime.csv`` (``--fresh``: not).
+are kept in ``results/stiff_regime/n<n>_ke<ke>/`` and their references cached as usual; the CSV, table and
+plot are derived from every run kept there (``--fresh``: only this invocation's; ``--replot``: nothing run),
+so sizes and stiffnesses run apart end up in one table and one plot.
 
 Usage::
 
     export OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 NUMBA_NUM_THREADS=1
     python -m benchmarks stiff-regime --sizes 32                 # ke 1e6 1e7 1e8
     python -m benchmarks stiff-regime --sizes 64 --ke 1e6 1e7
-    python -m benchmarks stiff-regime --replot                   # table and plot from stiff_regime.csv
+    python -m benchmarks stiff-regime --replot                   # table and plot from the kept runs
     python -m benchmarks stiff-regime --quick                    # n = 6, ke 1e6, 5 frames (tests)
 """
 
@@ -65,8 +66,8 @@ import numpy as np
 from . import frame_cost, stiffness_sweep
 from .common import RESULTS_DIR, fmt, markdown_table, pyplot, save_figure, write_csv
 
-__all__ = ["COLUMNS", "DEFAULT_CANDIDATES", "DEFAULT_FRAMES", "TARGETS", "method_rows", "explicit_fit", "crossings",
-           "main"]
+__all__ = ["COLUMNS", "DEFAULT_CANDIDATES", "DEFAULT_FRAMES", "TARGETS", "method_rows", "derive", "explicit_fit",
+           "crossings", "main"]
 
 #: Frames of the default window: the fall before the buckling (module docstring).
 DEFAULT_FRAMES = 30
@@ -81,7 +82,7 @@ QUICK_CANDIDATES = ("implicit_euler:60:direct", "tr_bdf2:60:direct", "linearized
 COLUMNS = ["n", "ke", "damping", "frames", "target", "method", "config", "reached", "decidable", "err_rms",
            "below_floor", "err_lower_bound", "cpu_per_frame_s", "cost_lower_bound", "ratio_to_se", "se_config",
            "se_err_rms", "se_cpu_per_frame_s", "newton_per_stage", "newton_per_step", "newton_failures",
-           "failed_steps", "retaken_steps", "floor", "ref_diffs", "ref_median_ratios", "se_substeps", "force_kernels",
+           "failed_steps", "retaken_steps", "method_failed_steps", "method_retaken_steps", "floor", "ref_diffs", "ref_median_ratios", "se_substeps", "force_kernels",
            "load_start", "load_end"]
 
 
@@ -107,9 +108,12 @@ def method_rows(summary: dict, runs: list[dict], target: float) -> list[dict]:
     for b in stiffness_sweep.best_per_method(summary, judged, target):
         run = next(r for r in runs if r["method"] == b["method"] and r["config"] == b["config"]
                    and r["role"] in ("explicit", "candidate"))
-        extra = {k: run.get(k, "") for k in ("below_floor", "newton_per_stage", "newton_per_step", "newton_failures",
-                                              "failed_steps", "retaken_steps")}
-        out.append({**b, **extra, "target": target, "damping": float(summary.get("damping") or 0.0),
+        extra = {k: _num(run.get(k, "")) for k in ("newton_per_stage", "newton_per_step", "newton_failures",
+                                                    "failed_steps", "retaken_steps")}
+        mine = [r for r in runs if r["method"] == b["method"] and r["role"] == "candidate"]
+        counts = {f"method_{k}": sum(int(_num(r.get(k)) or 0) for r in mine) if mine else ""
+                  for k in ("failed_steps", "retaken_steps")}
+        out.append({**b, **extra, **counts, "below_floor": run.get("below_floor") == "True", "target": target, "damping": float(summary.get("damping") or 0.0),
                     "frames": int(summary["frames"]), "ratio_to_se": b["cpu_per_frame_s"] / se_cpu,
                     "se_config": se["config"] if se else "", "se_err_rms": se.get("err_rms", "") if se else "",
                     "se_cpu_per_frame_s": se_cpu, "ref_diffs": summary.get("ref_diffs", ""),
@@ -118,24 +122,25 @@ def method_rows(summary: dict, runs: list[dict], target: float) -> list[dict]:
     return out
 
 
-def load(path: Path) -> list[dict]:
-    """Rows of a ``stiff_regime.csv``, typed."""
-    out = []
-    for r in _rows(path):
-        t = dict(r)
-        for k in ("n", "frames"):
-            t[k] = int(r[k])
-        for k in ("ke", "damping", "target", "err_rms", "cpu_per_frame_s", "ratio_to_se", "se_cpu_per_frame_s",
-                  "floor"):
-            t[k] = float(r[k]) if r[k] != "" else float("nan")
-        for k in ("reached", "decidable", "err_lower_bound", "cost_lower_bound"):
-            t[k] = r[k] == "True"
-        out.append(t)
-    return out
+def _num(v):
+    """A CSV field as a number (int where it is one), ``""`` if empty."""
+    if v in ("", None):
+        return ""
+    f = float(v)
+    return int(f) if f.is_integer() and "." not in str(v) else f
 
 
-def _key(r: dict) -> tuple:
-    return int(r["n"]), float(r["ke"]), float(r["target"]), r["method"]
+def derive(run_dirs) -> list[dict]:
+    """The rows of :func:`method_rows` at both targets for the frame-cost runs kept in ``run_dirs`` (those with
+    both CSVs), sorted by n, ke, target, method."""
+    rows = []
+    for d in run_dirs:
+        if not ((d / "frame_cost.csv").exists() and (d / "frame_cost_candidates.csv").exists()):
+            continue
+        runs = _rows(d / "frame_cost_candidates.csv")
+        rows += [r for s in _rows(d / "frame_cost.csv") for t in TARGETS
+                 for r in method_rows(s, [x for x in runs if x["n"] == s["n"]], t)]
+    return sorted(rows, key=lambda r: (r["n"], r["ke"], r["damping"], r["target"], r["method"]))
 
 
 def explicit_fit(rows: list[dict]) -> float:
@@ -242,7 +247,8 @@ def _err(r: dict) -> str:
 def markdown(rows: list[dict]) -> str:
     """The tables of ``stiff_regime.md``: one per target, and where each implicit line crosses the explicit trend."""
     cols = ["n", "ke", "method", "config", "reached", "err", "cpu_per_frame_s", "ratio_to_se", "newton_per_stage",
-            "newton_per_step", "failed_steps", "retaken_steps", "floor", "load_start", "load_end"]
+            "newton_per_step", "failed_steps", "retaken_steps", "method_failed_steps", "method_retaken_steps", "floor",
+            "load_start", "load_end"]
     parts = []
     for t in TARGETS:
         rs = sorted((r for r in rows if r["target"] == t), key=lambda r: (r["n"], r["ke"], r["method"]))
@@ -276,8 +282,10 @@ def main(argv=None) -> int:
                    help="cross-check the reference with solve_ivp up to this size (default 0: never)")
     p.add_argument("--force-kernels", default="auto", choices=("auto", "numba", "numpy"),
                    help="force evaluation of the measured runs (frame-cost's option; default auto)")
-    p.add_argument("--fresh", action="store_true", help="do not keep the rows of other (n, ke) in stiff_regime.csv")
-    p.add_argument("--replot", action="store_true", help="only rewrite the table and plot from stiff_regime.csv")
+    p.add_argument("--fresh", action="store_true",
+                   help="tabulate only this run's (n, ke), not every frame-cost run kept in results/stiff_regime/")
+    p.add_argument("--replot", action="store_true",
+                   help="run nothing: CSV, table and plot again from the frame-cost runs kept in results/stiff_regime/")
     p.add_argument("--quick", action="store_true", help="n = 6, ke 1e6, 5 frames, three candidates (tests)")
     p.add_argument("--out", type=Path, default=RESULTS_DIR)
     a = p.parse_args(argv)
@@ -286,12 +294,12 @@ def main(argv=None) -> int:
         a.candidates = list(QUICK_CANDIDATES)
     if not a.sizes or not a.ke or any(not k > 0 for k in a.ke):
         p.error("--sizes and --ke: at least one each, stiffnesses > 0")
-    csv_path = a.out / "stiff_regime.csv"
-    rows = load(csv_path) if csv_path.exists() and not a.fresh else []
+    kept = a.out / "stiff_regime"
+    ran = []
     if not a.replot:
         for n in a.sizes:
             for ke in a.ke:
-                d = a.out / "stiff_regime" / (f"n{n}_ke{ke:g}" + (f"_kd{a.damping:g}" if a.damping else ""))
+                d = kept / (f"n{n}_ke{ke:g}" + (f"_kd{a.damping:g}" if a.damping else ""))
                 args = ["--ke", f"{ke:g}", "--sizes", str(n), "--measure-all", "--frames", str(a.frames),
                         "--damping", str(a.damping), "--target", str(TARGETS[0]), "--stop-above", str(TARGETS[-1]),
                         "--budget", str(a.budget), "--out", str(d), "--force-kernels", a.force_kernels,
@@ -299,16 +307,13 @@ def main(argv=None) -> int:
                 if a.quick:
                     args += ["--explicit-window", "0.05"]
                 frame_cost.main(args)
-                runs = _rows(d / "frame_cost_candidates.csv")
-                new = [r for s in _rows(d / "frame_cost.csv") for t in TARGETS
-                       for r in method_rows(s, [x for x in runs if x["n"] == s["n"]], t)]
-                keys = {_key(r) for r in new}
-                rows = sorted([r for r in rows if _key(r) not in keys] + new,
-                              key=lambda r: (r["n"], r["ke"], r["target"], r["method"]))
-                write_csv(csv_path, rows, COLUMNS)  # a long run keeps its finished (n, ke)
-                rows = load(csv_path)
+                ran.append(d)
+                rows = derive(ran if a.fresh else sorted(kept.iterdir()))
+                write_csv(a.out / "stiff_regime.csv", rows, COLUMNS)  # a long run keeps its finished (n, ke)
+    rows = derive(ran if a.fresh else sorted(kept.iterdir()) if kept.is_dir() else [])
+    write_csv(a.out / "stiff_regime.csv", rows, COLUMNS)
     if not rows:
-        p.error(f"no rows: {csv_path} is missing or empty")
+        p.error(f"no frame-cost runs in {kept}")
     md = markdown(rows)
     (a.out / "stiff_regime.md").write_text(md)
     print(md)
