@@ -208,7 +208,8 @@ def plot(rows: list[dict], out_png: Path, target: float = TARGETS[0]) -> bool:
             rs = sorted((r for r in here if r["method"] == m), key=lambda r: r["ke"])
             if not rs:
                 continue
-            ax.plot([r["ke"] for r in rs], [r["cpu_per_frame_s"] for r in rs], "-", color=colors[m], label=m)
+            reached = [r for r in rs if r["reached"]]  # the line joins the configurations within the target
+            ax.plot([r["ke"] for r in reached], [r["cpu_per_frame_s"] for r in reached], "-", color=colors[m], label=m)
             for r in rs:  # filled: within the target; hollow: the most accurate run, not within; x: undecidable
                 marker = "^" if r.get("cost_lower_bound") else "o" if r["decidable"] else "x"
                 ax.plot(r["ke"], r["cpu_per_frame_s"], marker, color=colors[m],
@@ -232,7 +233,7 @@ def plot(rows: list[dict], out_png: Path, target: float = TARGETS[0]) -> bool:
                      f"(filled; hollow: none within, the most accurate; x: floor above the target)\n"
                      f"star: crossing with the explicit trend (hollow: extrapolated)", fontsize=8)
         ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=7)
+        ax.legend(fontsize=7, loc="upper left")
     save_figure(fig, out_png, dpi=110)
     return True
 
