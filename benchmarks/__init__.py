@@ -29,4 +29,5 @@ BENCHMARKS = {
     "distributed": "distributed",
     "stiffness-sweep": "stiffness_sweep",
     "explicit-limit": "explicit_limit",
+    "stiff-regime": "stiff_regime",
 }

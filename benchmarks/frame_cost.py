@@ -5,7 +5,9 @@ itself at a smaller step. For each cloth size ``n`` (default 32 64) on the accur
 ``accuracy_cloth(n)`` = ``benchmark_cloth(n, ke=1e3, ke_shear=1e3, ke_bend=1e2)`` (1 m, 1 kg, edge
 y = 0 pinned, released horizontal at rest, undamped), over a window of ``--frames`` frames of 1/60 s
 from the release (default 70, i.e. 1.167 s: the fall, the buckling and the folds after it); ``--ke``
-sets the structural and shear stiffness instead (``--ke 1e4`` is ``benchmark_cloth(n)`` itself):
+sets the structural and shear stiffness instead (``--ke 1e4`` is ``benchmark_cloth(n)`` itself), ``--damping``
+gives every spring (structural, shear, bending) a damping [N s/m] (default 0; the reference's Verlet is
+then first order in the damping force, which its floor reports):
 
 1. **Reference** (:mod:`benchmarks.reference_cache`). Velocity Verlet (second order, symplectic; only
    the force evaluation is shared with springsim's integrators) at ``S_ref``, ``2 S_ref``, ``4 S_ref``
@@ -96,7 +98,7 @@ FRAME_DT = 1.0 / 60.0
 DEFAULT_FRAMES = 70
 
 #: Columns of the summary CSV (one row per size).
-COLUMNS = ["n", "ke", "dofs", "frames", "window_s", "target", "ref_method", "ref_substeps", "ref_h", "ref_diffs",
+COLUMNS = ["n", "ke", "damping", "dofs", "frames", "window_s", "target", "ref_method", "ref_substeps", "ref_h", "ref_diffs",
            "ref_median_ratios", "ref_pair_diff", "xcheck_method", "xcheck_diff", "floor", "ref_usable", "ref_cpu_s",
            "config", "method", "solver", "h", "steps_per_frame", "err_rms", "below_floor", "err_frame",
            "wall_per_frame_s", "cpu_per_frame_s", "newton_per_step", "linear_per_step", "newton_failures",
@@ -110,8 +112,8 @@ COLUMNS = ["n", "ke", "dofs", "frames", "window_s", "target", "ref_method", "ref
 CANDIDATE_COLUMNS = ["n", "role", "config", "method", "solver", "h", "steps_per_frame", "steps", "frames_run",
                      "probe_frame_s", "probe_cpu_frame_s", "wall_s", "cpu_s", "wall_per_frame_s", "cpu_per_frame_s",
                      "cost_lower_bound", "err_rms", "below_floor", "err_lower_bound", "err_frame", "err_final",
-                     "err_raw", "floor", "diff_to_next", "newton_per_step", "linear_per_step", "newton_failures",
-                     "status"]
+                     "err_raw", "floor", "diff_to_next", "newton_per_step", "newton_per_stage", "linear_per_step",
+                     "newton_failures", "failed_steps", "retaken_steps", "status"]
 
 #: Default candidates, ``method:1/h:solver``.
 DEFAULT_CANDIDATES = ("linearized_implicit:60:auto", "linearized_implicit:120:auto", "linearized_implicit:240:auto",
@@ -123,14 +125,17 @@ DEFAULT_CANDIDATES = ("linearized_implicit:60:auto", "linearized_implicit:120:au
 QUICK_CANDIDATES = ("linearized_implicit:60:direct", "tr_bdf2:60:direct", "tr_bdf2:240:direct")
 
 
-def cloth(n: int, ke: float | None = None):
+def cloth(n: int, ke: float | None = None, damping: float = 0.0):
     """:func:`springsim.scene.gallery.accuracy_cloth` (``ke`` None), else :func:`~springsim.scene.benchmark_cloth`
-    with structural and shear springs of ``ke`` N/m (bending 1e2 N/m as in both; ``ke = 1e4`` is the benchmark cloth)."""
+    with structural and shear springs of ``ke`` N/m (bending 1e2 N/m as in both; ``ke = 1e4`` is the benchmark cloth).
+    ``damping`` > 0: every spring (structural, shear, bending) gets that damping [N s/m] (``benchmark_cloth``'s
+    ``damping``; with ``ke`` None the accuracy cloth's stiffnesses)."""
     from springsim.scene.gallery import accuracy_cloth, benchmark_cloth
 
-    if ke is None:
+    if ke is None and not damping:
         return accuracy_cloth(n)
-    return benchmark_cloth(n, stiffness=ke, stiffness_shear=ke, stiffness_bend=1e2)
+    ke = 1e3 if ke is None else ke
+    return benchmark_cloth(n, stiffness=ke, stiffness_shear=ke, stiffness_bend=1e2, damping=float(damping))
 
 
 # -- explicit stability limit -----------------------------------------------------------------------------------
@@ -363,11 +368,16 @@ class Run:
         return True
 
     def summary(self) -> dict:
+        """Per step: Newton and Krylov iterations; per stage solve (retakes included): Newton iterations;
+        steps whose Newton did not converge, steps not ``ok`` after their retakes, steps retaken in substeps."""
         s = self.stats
         k = max(len(s), 1)
-        return dict(newton_per_step=sum(x.newton_iterations for x in s) / k,
+        newton = sum(x.newton_iterations for x in s)
+        stages = sum(x.extra.get("stages", 0) for x in s)
+        return dict(newton_per_step=newton / k, newton_per_stage=newton / stages if stages else float("nan"),
                     linear_per_step=sum(x.linear_iterations for x in s) / k,
-                    newton_failures=sum(not x.newton_converged for x in s))
+                    newton_failures=sum(not x.newton_converged for x in s), failed_steps=sum(not x.ok for x in s),
+                    retaken_steps=sum("retaken" in x.extra for x in s))
 
 
 def force_kernels_used(model, force_kernels: str) -> str:
@@ -463,7 +473,8 @@ def measure_size(n: int, a, log=print) -> tuple[dict, list[dict]]:
 
     load_start = _load()
     t_start = time.perf_counter()
-    model = cloth(n, a.ke)
+    damping = getattr(a, "damping", 0.0)
+    model = cloth(n, a.ke, damping)
     dofs = 3 * int(model.free_particles.size)
     frames = a.frames
     window = frames * FRAME_DT
@@ -477,7 +488,7 @@ def measure_size(n: int, a, log=print) -> tuple[dict, list[dict]]:
         f"{om0['gershgorin']:.6g}); explicit substeps/frame {S0}")
     rows: list[dict] = []
     cache = None if a.no_cache else a.cache_dir
-    case = f"accuracy_cloth{n}" if a.ke is None else f"cloth{n}_ke{a.ke:g}"
+    case = (f"accuracy_cloth{n}" if a.ke is None else f"cloth{n}_ke{a.ke:g}") + (f"_kd{damping:g}" if damping else "")
 
     # 1. the reference and its floor
     base = a.ref_substeps or a.ref_base * S0
@@ -510,7 +521,7 @@ def measure_size(n: int, a, log=print) -> tuple[dict, list[dict]]:
     floor = ref.floor if np.isnan(xdiff) else max(ref.floor, xdiff)
     usable = bool(ref.finite and floor < a.target)
     log(f"  reference floor {floor:.3g} m ({'usable' if usable else 'NOT usable'} for a {a.target:g} m target)")
-    summary = dict(n=n, ke=1e3 if a.ke is None else a.ke, dofs=dofs, frames=frames, window_s=window, target=a.target, ref_method=a.ref_method,
+    summary = dict(n=n, ke=1e3 if a.ke is None else a.ke, damping=damping, dofs=dofs, frames=frames, window_s=window, target=a.target, ref_method=a.ref_method,
                    ref_substeps=ref.substeps[-1], ref_h=FRAME_DT / ref.substeps[-1],
                    ref_diffs=" ".join(f"{d:.3g}" for d in diffs), ref_median_ratios=" ".join(f"{r:.3g}" for r in med),
                    ref_pair_diff=ref.floor, xcheck_method=xmethod, xcheck_diff=xdiff if xmethod else "", floor=floor,
@@ -602,7 +613,8 @@ def measure_size(n: int, a, log=print) -> tuple[dict, list[dict]]:
             f"{', stopped' if res['stopped'] else ''}{', out of budget' if res['out_of_time'] else ''}), "
             f"{'> ' if res['out_of_time'] else ''}{r['cpu_per_frame_s']:.3g} CPU s/frame, "
             f"{r['wall_per_frame_s']:.3g} wall; {r.get('newton_per_step', float('nan')):.3g} Newton/step, "
-            f"{r.get('newton_failures', 0)} failures")
+            f"{r.get('newton_failures', 0)} failures, {r.get('failed_steps', 0)} failed steps, "
+            f"{r.get('retaken_steps', 0)} retaken")
         del run
         gc.collect()
         if (usable and r["status"] == "within target"
@@ -665,7 +677,7 @@ def markdown(summaries: list[dict], rows: list[dict], target: float) -> str:
               "se_err", "se_cpu_per_frame_s", "se_wall_per_frame_s", "cpu_ratio_to_se", "load_start", "load_end"]
     c_cols = ["n", "role", "config", "frames_run", "err", "err_frame", "err_final", "err_raw", "diff_to_next",
               "cpu_per_frame_s", "wall_per_frame_s", "probe_cpu_frame_s", "newton_per_step", "linear_per_step",
-              "newton_failures", "status"]
+              "newton_failures", "failed_steps", "retaken_steps", "status"]
     return (f"## Time per 1/60 s frame within {target:g} m RMS of the validated reference\n\n"
             f"error = RMS over particles, max over every frame of the window\n\n"
             + markdown_table(s_rows, s_cols) + "\n\n### Every run\n\n" + markdown_table(c_rows, c_cols) + "\n")
@@ -680,6 +692,8 @@ def main(argv=None) -> int:
                    help=f"window: frames of 1/60 s from the release (default {DEFAULT_FRAMES})")
     p.add_argument("--ke", type=float, default=None,
                    help="structural and shear stiffness [N/m] (default: the accuracy cloth's 1e3; 1e4 is benchmark_cloth)")
+    p.add_argument("--damping", type=float, default=0.0,
+                   help="spring damping [N s/m] of every spring, structural, shear and bending (default 0: undamped)")
     p.add_argument("--target", type=float, default=0.01, help="RMS error target [m] (default 0.01)")
     p.add_argument("--ref-method", default="verlet", choices=("verlet", "symplectic_euler"),
                    help="explicit method of the reference ladder (default verlet)")
@@ -718,6 +732,8 @@ def main(argv=None) -> int:
     a = p.parse_args(argv)
     if a.ke is not None and not (np.isfinite(a.ke) and a.ke > 0):
         p.error(f"--ke must be > 0, got {a.ke}")
+    if not (np.isfinite(a.damping) and a.damping >= 0):
+        p.error(f"--damping must be >= 0, got {a.damping}")
     for name in ("target", "budget", "explicit_window"):
         if not getattr(a, name) > 0:
             p.error(f"--{name.replace('_', '-')} must be > 0, got {getattr(a, name)}")

@@ -72,7 +72,8 @@ class StepStats:
     failures : list of str
         Why the step is not :attr:`ok` (empty when it is).
     extra : dict
-        Integrator-specific counters (``jacobian_escalations``, ``order_reduced``, ``retaken``, ...).
+        Integrator-specific counters (``stages``: stage solves, retakes included; ``jacobian_escalations``,
+        ``order_reduced``, ``retaken``, ...).
     """
 
     dt: float

@@ -347,6 +347,7 @@ class StageSolver:
         o = self.options
         maxiter = o.newton_maxiter if maxiter is None else maxiter
         self._failed = []
+        stats.extra["stages"] = stats.extra.get("stages", 0) + 1
         v = np.array(v0, dtype=np.float64)
         v[self.system.fixed] = 0.0
         if converge and o.stage_solver == "minimize" and forces is None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import math
 import importlib
 
 import numpy as np
@@ -207,3 +208,52 @@ def test_explicit_limit_quick(tmp_path, capsys):
     assert "| n | ke |" in capsys.readouterr().out
     with pytest.raises(SystemExit):
         explicit_limit.main(["--ke", "-1"])
+
+
+def test_stiff_regime_quick(tmp_path):
+    """``python -m benchmarks stiff-regime --quick``: per target (1 cm, 5 cm) one row per method with its cheapest
+    configuration within it, the ratio to symplectic Euler at its verified limit, no failed step, and the plot."""
+    from benchmarks import stiff_regime as sr
+
+    assert sr.main(["--quick", "--out", str(tmp_path)]) == 0
+    rows, cols = _read(tmp_path / "stiff_regime.csv")
+    assert list(cols) == sr.COLUMNS
+    methods = {"symplectic_euler", "implicit_euler", "tr_bdf2", "linearized_implicit"}
+    assert {(float(r["target"]), r["method"]) for r in rows} == {(t, m) for t in sr.TARGETS for m in methods}
+    se = {float(r["target"]): r for r in rows if r["method"] == "symplectic_euler"}
+    for r in rows:
+        assert int(r["n"]) == 6 and float(r["ke"]) == 1e6 and int(r["frames"]) == 5
+        assert (r["reached"] == "True") == (float(r["err_rms"]) < float(r["target"]))
+        assert float(r["ratio_to_se"]) == pytest.approx(float(r["cpu_per_frame_s"]) /
+                                                        float(se[float(r["target"])]["cpu_per_frame_s"]))
+        assert float(r["floor"]) < 1e-6 and r["decidable"] == "True" and r["load_start"]
+        if r["method"] != "symplectic_euler":
+            assert int(r["failed_steps"]) == 0 and float(r["newton_per_stage"]) >= 1
+    tr = next(r for r in rows if r["method"] == "tr_bdf2")  # two stages per step
+    assert float(tr["newton_per_step"]) == pytest.approx(2 * float(tr["newton_per_stage"]), rel=0.3)
+    assert "### Within 1 cm" in (tmp_path / "stiff_regime.md").read_text()
+    pytest.importorskip("matplotlib")
+    assert (tmp_path / "stiff_regime.png").stat().st_size > 1000
+    (tmp_path / "stiff_regime.png").unlink()
+    assert sr.main(["--replot", "--out", str(tmp_path)]) == 0  # from the CSV alone
+    assert (tmp_path / "stiff_regime.png").stat().st_size > 1000
+
+
+def test_stiff_regime_crossings():
+    """The crossing of an implicit line with the explicit trend C n^3 sqrt(ke): interpolated inside the measured
+    range, extrapolated (the cost held) outside it; the trend's C from symplectic Euler's rows."""
+    from benchmarks import stiff_regime as sr
+
+    def row(method, ke, cpu, n=2):
+        return dict(n=n, ke=ke, method=method, target=0.01, cpu_per_frame_s=cpu, reached=True, decidable=True)
+
+    se = [row("symplectic_euler", k, 3.0 * 8 * math.sqrt(k)) for k in (1e6, 1e8)]
+    C = sr.explicit_fit(se)
+    assert C == pytest.approx(3.0)
+    # trend at n = 2: 24 sqrt(ke): 2.4e4 at 1e6, 2.4e5 at 1e8; a flat implicit line at 7.59e4 crosses at 1e7
+    flat = [row("tr_bdf2", k, 24 * math.sqrt(1e7)) for k in (1e6, 1e8)]
+    (c,) = sr.crossings(se + flat, C)
+    assert not c["extrapolated"] and c["ke"] == pytest.approx(1e7, rel=1e-9)
+    cheap = [row("bdf2", 1e8, 1.0)]  # below the trend everywhere measured: extrapolated below
+    (c,) = sr.crossings(se + cheap, C)
+    assert c["extrapolated"] and c["ke"] == pytest.approx((1.0 / 24) ** 2)

@@ -330,3 +330,24 @@ def test_stiffness_sweep_passes_cross_check_limit(tmp_path, monkeypatch):
     calls.clear()
     assert sw.main(["--sizes", "64", "--ke", "1e6", "--force-kernels", "numpy", "--out", str(tmp_path)]) == 0
     assert calls[0][calls[0].index("--force-kernels") + 1] == "numpy"
+
+
+def test_damping_reaches_every_spring_and_the_cache_key(fc, tmp_path):
+    """``--damping``: every spring of the cloth gets it, the reference is cached apart from the undamped one's, and
+    the damped reference still converges; the summary records it."""
+    undamped, damped = fc.cloth(4, 1e4), fc.cloth(4, 1e4, 0.02)
+    assert np.all(undamped.spring_damping == 0.0) and np.all(damped.spring_damping == 0.02)
+    assert np.array_equal(damped.spring_stiffness, undamped.spring_stiffness)
+    assert np.all(fc.cloth(4, None, 0.02).spring_damping == 0.02)  # the accuracy cloth's stiffnesses, damped
+    args = ["--quick", "--sizes", "4", "--ke", "1e4", "--frames", "4", "--cross-check-max-n", "0", "--candidates",
+            "--cache-dir", str(tmp_path / "ref")]
+    assert fc.main(args + ["--damping", "0.02", "--out", str(tmp_path / "d")]) == 0
+    assert fc.main(args + ["--out", str(tmp_path / "u")]) == 0
+    names = sorted(p.name for p in (tmp_path / "ref").iterdir())
+    assert len(names) == 6 and sum("_kd0.02_" in x for x in names) == 3
+    (d,), _ = _read(tmp_path / "d" / "frame_cost.csv")
+    (u,), _ = _read(tmp_path / "u" / "frame_cost.csv")
+    assert float(d["damping"]) == 0.02 and float(u["damping"]) == 0.0
+    assert 0 < float(d["floor"]) < 1e-4 and float(d["floor"]) != float(u["floor"])
+    with pytest.raises(SystemExit):
+        fc.main(["--quick", "--damping", "-1"])
