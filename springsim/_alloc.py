@@ -8,7 +8,7 @@ linearized implicit Euler step is then system time. :func:`retain_freed_memory` 
 ``malloc`` serve large blocks from its heap and never trim it (``mallopt``: ``M_MMAP_MAX = 0``,
 ``M_TRIM_THRESHOLD`` and ``M_TOP_PAD`` large), so freed blocks are reused without page faults; the
 process keeps its peak memory until it exits (9 % shorter steps, 5 % more peak memory at n = 256:
-"Allocator" in benchmarks/notes/2026-12-05-linear-solvers-and-amg.md).
+"Allocator" in the linear-solver notes of BENCHMARKS.md#cloth-grid).
 
 It is a process-wide setting, so only the command line (``springsim`` run as a program) and the
 benchmarks apply it; ``SPRINGSIM_RETAIN_MEMORY=0`` turns it off. A program that imports springsim

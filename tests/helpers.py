@@ -14,7 +14,8 @@ from springsim import ModelBuilder
 from springsim.forces import eval_forces
 from springsim.reference import reference_trajectory
 
-__all__ = ["PENDULUM_YAML", "random_scene", "two_particle_scene", "damped_chain", "fd_jacobians", "rel_err", "observed_errors"]
+__all__ = ["PENDULUM_YAML", "random_scene", "two_particle_scene", "damped_chain", "fd_jacobians", "rel_err", "observed_errors",
+           "run_cli", "one_line_error"]
 
 
 #: A two-particle spring scene (one fixed, one hanging) in the assignment's YAML format: 5 implicit Euler steps.
@@ -184,3 +185,21 @@ def observed_errors(name: str, hs, **options) -> np.ndarray:
         assert np.allclose(tr.t, ref.t)
         errs.append(max(np.abs(tr.q - ref.q).max(), np.abs(tr.qd - ref.qd).max()))
     return np.array(errs)
+
+
+def run_cli(capsys, *argv):
+    """``springsim`` with ``argv`` in this process: ``(exit status, stdout, stderr)``."""
+    from springsim import cli
+
+    code = cli.main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def one_line_error(capsys, *argv, code=2):
+    """Run the CLI and check: the exit status, exactly one line on stderr, no traceback; return that line."""
+    got, _, err = run_cli(capsys, *argv)
+    assert got == code, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in err, err
+    return lines[0]

@@ -95,8 +95,8 @@ def _scatter_add(S: sp.csr_matrix, X: np.ndarray, Y: np.ndarray) -> None:
 
     Accumulates in place with scipy's compiled CSR kernel when ``Y`` is C-contiguous, so no
     (nnzb, 9) temporary is allocated: at n = 256 that temporary is 61 MB per assembly, and
-    fresh large allocations cost page faults on every call (benchmarks/notes/2026-12-05-linear-solvers-and-amg.md). Otherwise
-    (or without the kernel) the public product.
+    fresh large allocations cost page faults on every call (the linear-solver notes of
+    BENCHMARKS.md#cloth-grid). Otherwise (or without the kernel) the public product.
     """
     if _csr_matvecs is not None and Y.flags.c_contiguous:
         _csr_matvecs(S.shape[0], S.shape[1], X.shape[1], S.indptr, S.indices, S.data,

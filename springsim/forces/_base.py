@@ -220,7 +220,7 @@ class ForceTerm(ABC):
         returned blocks may then live in it, valid until the next call with the same dict.
         The assembler passes one per term, so repeated assemblies allocate nothing large
         (fresh multi-MB arrays cost page faults on every call: "Assembly and page faults" in
-        benchmarks/notes/2026-12-05-linear-solvers-and-amg.md). Overrides must accept ``work``
+        the linear-solver notes of BENCHMARKS.md#cloth-grid). Overrides must accept ``work``
         (a term with small temporaries may ignore it).
 
         Parameters

@@ -127,23 +127,7 @@ class ForceGravitational(ForceTerm):
     def eval_jacobians_discrete(self, q0, q1, qd, mode="exact", *, work=None):
         """Derivative of :meth:`eval_force_discrete` with respect to the midpoint (module docstring).
 
-        Parameters
-        ----------
-        q0, q1 : ndarray, shape (N, 3)
-            Positions [m] at the start and the end of the step.
-        qd : ndarray, shape (N, 3)
-            Midpoint velocity [m/s].
-        mode : {"exact", "symmetric", "spd"}
-            Jacobian mode (:data:`JACOBIAN_MODES`).
-        work : dict, optional
-            Scratch space owned by the caller (:func:`scratch`).
-
-        Returns
-        -------
-        dq : Blocks or None
-            ``dF/dq`` [N/m] in :attr:`layout_q`, None where the term does not depend on ``q``.
-        dqd : Blocks or None
-            ``dF/dqd`` [N s/m] in :attr:`layout_qd`, None where the term does not depend on ``qd``.
+        Parameters and returns as :meth:`ForceTerm.eval_jacobians_discrete`.
         """
         P = self.pairs.shape[0]
         dm, l1, d1, s, s1 = self._discrete_coefficient(q0, q1)

@@ -9,7 +9,7 @@ the blocks in a loop whose trip counts (the block sizes) are only known at run t
 numba kernel compiled for the block sizes (3x3 times 3x6 on the finest level of a cloth, 6x3 times
 3x6 for its Galerkin product, 6x6 on the coarse levels), so the compiler unrolls the block loops:
 about twice scipy's speed for the products of a 195,840-DOF cloth (BENCHMARKS.md#cloth-grid; per kernel:
-"Compiled kernels" in benchmarks/notes/2026-12-05-linear-solvers-and-amg.md).
+"Compiled kernels" in the linear-solver notes of BENCHMARKS.md#cloth-grid).
 The Galerkin product ``R (A P)`` is symmetric: its plan computes the entries on and above the
 diagonal and mirrors them (``BsrProduct(..., symmetric=True)``), half the work. The rest of a
 level's setup runs compiled too: the diagonal blocks and their inverses in one pass
@@ -213,7 +213,7 @@ class BsrOperator:
     """``x -> A x`` for a BSR matrix through the compiled block kernel (``A @ x`` for the Krylov methods).
 
     About 0.6x the time of scipy's ``bsr_matvec`` on the 3x3 blocks of a cloth (the block loops unrolled;
-    "Compiled kernels" in benchmarks/notes/2026-12-05-linear-solvers-and-amg.md); equal to it to round-off
+    "Compiled kernels" in the linear-solver notes of BENCHMARKS.md#cloth-grid); equal to it to round-off
     (the products within each block are summed before they are added to the result). Holds ``A``'s arrays,
     so it follows in-place updates of ``A``'s values.
     A vector of another length, dtype or dimension goes through scipy's product (which checks it).
@@ -265,7 +265,7 @@ class CompiledVCycle:
     before and a backward one after (a symmetric cycle, as CG needs), the coarse correction through
     each level's ``R`` and ``P``, and the coarsest level by ``coarse_solver(A, b)`` (pyamg's): equal to
     pyamg's cycle to round-off, in less time (the compiled sweeps and mat-vecs, no temporaries beyond
-    the level vectors; measured per kernel in benchmarks/notes/2026-12-05-linear-solvers-and-amg.md, "Compiled kernels").
+    the level vectors; measured per kernel in the linear-solver notes of BENCHMARKS.md#cloth-grid, "Compiled kernels").
     Single-precision copies of the levels' matrices were tried and not kept: no faster (same note, "Tried and not kept").
 
     Called with a right-hand side ``r``, returns the cycle's ``M^-1 r`` (a new array).

@@ -14,14 +14,14 @@ inverse block diagonal, Galerkin products) with two differences:
   level keeps its top Ritz vector (``level.ritz``); passed back for the next matrix with the
   same pattern (``ritz``), it starts a run of ``warm_lanczos_steps`` (4) that is as accurate
   as 12 steps from a random start ("Warm-started spectral radius" in
-  benchmarks/notes/2026-12-05-linear-solvers-and-amg.md);
+  the linear-solver notes of BENCHMARKS.md#cloth-grid);
 * the aggregates of every level can be passed back in (``aggregates``) and are then
   reused: the strength graph of a mass-spring system follows its springs, whose set is
   fixed, so aggregates from an earlier matrix with the same pattern stay good (the
   prolongator itself is always rebuilt from the current matrix and candidates).
 
 It gives pyamg's levels (aggregation identical) and the same CG iterations, with a setup about
-40 % shorter ("Own setup" in benchmarks/notes/2026-12-05-linear-solvers-and-amg.md).
+40 % shorter ("Own setup" in the linear-solver notes of BENCHMARKS.md#cloth-grid).
 """
 
 from __future__ import annotations

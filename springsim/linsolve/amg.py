@@ -39,7 +39,7 @@ implicit system's 3x3 block structure:
   change the matrix by ~1e-3 relative (and a hierarchy serves them), consecutive steps of a falling
   cloth by 3-10e-2 (and it does not).
 
-The measurements behind these choices are in benchmarks/notes/2026-12-05-linear-solvers-and-amg.md
+The measurements behind these choices are in the linear-solver notes of BENCHMARKS.md#cloth-grid
 ("AMG design choices"); the current step times in BENCHMARKS.md#cloth-grid.
 """
 

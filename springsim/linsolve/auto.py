@@ -4,7 +4,7 @@
   this size a factorisation beats an AMG setup plus its iterations, and it is exact for indefinite
   and non-symmetric matrices alike; above it SuperLU's fill grows faster than AMG's linear cost
   (the crossover, 3,000 to 5,000 DOFs on the benchmark cloth, is measured in "`auto` crossover" of
-  benchmarks/notes/2026-12-05-linear-solvers-and-amg.md; BENCHMARKS.md#scaling has the current step times on both sides).
+  the linear-solver notes of BENCHMARKS.md#cloth-grid; BENCHMARKS.md#scaling has the current step times on both sides).
 * larger and symmetric (``symmetric``/``spd`` modes, or undamped ``exact``): ``amg-cg``; if the
   matrix is indefinite, CG detects it and hands over to ``direct``.
 * larger and non-symmetric (``exact`` with damping): ``amg-gmres``.
@@ -24,7 +24,7 @@ from .iterative import LinearSolverAMGCG, LinearSolverAMGGMRES
 __all__ = ["LinearSolverAuto", "DIRECT_MAX_DOFS"]
 
 #: Largest system [DOFs] ``auto`` gives to ``direct`` (the measured crossover,
-#: benchmarks/notes/2026-12-05-linear-solvers-and-amg.md).
+#: the linear-solver notes of BENCHMARKS.md#cloth-grid).
 DIRECT_MAX_DOFS = 4000
 
 

@@ -17,6 +17,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
+from helpers import one_line_error, run_cli
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -35,19 +37,7 @@ SPRING = str(ROOT / "scenes" / "spring.yaml")
 HEAD = "solver: {type: implicit_euler, timestep: 0.01}\n"
 
 
-def _main(capsys, *argv):
-    code = cli.main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
-def _one_line_error(capsys, *argv, code=2):
-    """Run the CLI and check: the exit status, exactly one line on stderr, no traceback; return that line."""
-    got, _, err = _main(capsys, *argv)
-    assert got == code, err
-    lines = err.strip().splitlines()
-    assert len(lines) == 1 and "Traceback" not in err, err
-    return lines[0]
+_main, _one_line_error = run_cli, one_line_error
 
 
 def _scene_error(text: str) -> str:

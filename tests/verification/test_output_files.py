@@ -24,6 +24,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from helpers import one_line_error, run_cli
+
 import springsim
 from springsim import cli
 from springsim.driver import Trajectory
@@ -36,19 +38,7 @@ TWO = ("solver: {type: implicit_euler, timestep: 0.01, steps: 6}\n"
        "springs: [{particle_ids: [0, 1], stiffness: 100}]\n")
 
 
-def _main(capsys, *argv):
-    code = cli.main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
-def _one_line_error(capsys, *argv, code=2):
-    """Run the CLI and check: the exit status, exactly one line on stderr, no traceback; return that line."""
-    got, _, err = _main(capsys, *argv)
-    assert got == code, err
-    lines = err.strip().splitlines()
-    assert len(lines) == 1 and "Traceback" not in err, err
-    return lines[0]
+_main, _one_line_error = run_cli, one_line_error
 
 
 @pytest.fixture
