@@ -30,4 +30,5 @@ BENCHMARKS = {
     "stiffness-sweep": "stiffness_sweep",
     "explicit-limit": "explicit_limit",
     "stiff-regime": "stiff_regime",
+    "stiff-convergence": "stiff_convergence",
 }

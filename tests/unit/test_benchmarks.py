@@ -257,3 +257,13 @@ def test_stiff_regime_crossings():
     cheap = [row("bdf2", 1e8, 1.0)]  # below the trend everywhere measured: extrapolated below
     (c,) = sr.crossings(se + cheap, C)
     assert c["extrapolated"] and c["ke"] == pytest.approx((1.0 / 24) ** 2)
+
+
+def test_stiff_convergence_quick(tmp_path):
+    """``python -m benchmarks stiff-convergence --quick``: one row per (ke, integrator), every step converged."""
+    from benchmarks import stiff_convergence as mod
+
+    assert mod.main(["--quick", "--out", str(tmp_path)]) == 0
+    rows, cols = _read(tmp_path / "stiff_convergence.csv")
+    assert list(cols) == mod.COLUMNS and len(rows) == 6
+    assert all(r["failed_steps"] == "0" and float(r["newton_per_stage"]) >= 1 for r in rows)
