@@ -13,6 +13,7 @@ Usage::
 
     export OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 NUMBA_NUM_THREADS=1
     python -m benchmarks stiff-convergence --sizes 32 --ke 1e3 1e4 1e6 1e8 --damping 0 1
+    python -m benchmarks stiff-convergence --sizes 16 --ke 1e6 1e8 --frames 40 --jacobian spd   # against mixed
     python -m benchmarks stiff-convergence --quick          # n = 6, two stiffnesses, a few frames (tests)
 """
 
@@ -35,8 +36,8 @@ COLUMNS = ["n", "ke", "kd", "inv_h", "integrator", "failed_steps", "retaken_step
 STAGES = {"tr_bdf2": 2}
 
 
-def run(n: int, ke: float, kd: float, inv_h: int, name: str, frames: int) -> dict:
-    """One run (module docstring): its table row."""
+def run(n: int, ke: float, kd: float, inv_h: int, name: str, frames: int, **options) -> dict:
+    """One run (module docstring): its table row; ``options`` go to the integrator."""
     import springsim as ss
     from springsim.energy import total_energy
     from springsim.scene import benchmark_cloth
@@ -44,7 +45,7 @@ def run(n: int, ke: float, kd: float, inv_h: int, name: str, frames: int) -> dic
     model = benchmark_cloth(n, stiffness=ke, damping=kd)
     i, j = model.spring_indices.T
     sub = inv_h // 60
-    integ = ss.make_integrator(name, model, on_nonconvergence="ignore")
+    integ = ss.make_integrator(name, model, on_nonconvergence="ignore", **options)
     t0 = time.process_time()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # counted from the StepStats below
@@ -68,6 +69,7 @@ def main(argv=None) -> int:
     p.add_argument("--inv-h", type=int, nargs="+", default=[60], help="1/h, multiples of 60")
     p.add_argument("--integrators", nargs="+", default=["implicit_euler", "bdf2", "tr_bdf2"])
     p.add_argument("--frames", type=int, default=30)
+    p.add_argument("--jacobian", default=None, help="Jacobian mode (default: the integrator's, mixed)")
     p.add_argument("--quick", action="store_true", help="n = 6, ke 1e4 and 1e8, 3 frames (tests)")
     p.add_argument("--out", default=str(RESULTS_DIR))
     a = p.parse_args(argv)
@@ -81,7 +83,8 @@ def main(argv=None) -> int:
             for ke in a.ke:
                 for inv_h in a.inv_h:
                     for name in a.integrators:
-                        rows.append(run(n, ke, kd, inv_h, name, a.frames))
+                        options = {} if a.jacobian is None else {"jacobian": a.jacobian}
+                        rows.append(run(n, ke, kd, inv_h, name, a.frames, **options))
                         print(markdown_table([rows[-1]], COLUMNS).splitlines()[-1], flush=True)
     write_csv(os.path.join(a.out, "stiff_convergence.csv"), rows, COLUMNS)
     with open(os.path.join(a.out, "stiff_convergence.md"), "w") as fh:
