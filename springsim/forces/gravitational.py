@@ -111,14 +111,7 @@ class ForceGravitational(ForceTerm):
     def eval_force_discrete(self, q0, q1, qd, f_out):
         """Discrete gradient of the softened pair potential ``phi(l)`` (module docstring).
 
-        Parameters
-        ----------
-        q0, q1 : ndarray, shape (N, 3)
-            Positions [m] at the start and the end of the step.
-        qd : ndarray, shape (N, 3)
-            Midpoint velocity [m/s].
-        f_out : ndarray, shape (N, 3)
-            Force accumulator [N], added to in place.
+        Parameters as :meth:`ForceTerm.eval_force_discrete`.
         """
         dm, _, _, s, _ = self._discrete_coefficient(q0, q1)
         dm *= -s[:, None]

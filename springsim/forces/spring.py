@@ -208,14 +208,7 @@ class ForceSpring(ForceTerm):
     def eval_force_discrete(self, q0, q1, qd, f_out):
         """Discrete gradient of ``k/2 (l - l0)^2`` (module docstring) plus the damping at the midpoint.
 
-        Parameters
-        ----------
-        q0, q1 : ndarray, shape (N, 3)
-            Positions [m] at the start and the end of the step.
-        qd : ndarray, shape (N, 3)
-            Midpoint velocity [m/s].
-        f_out : ndarray, shape (N, 3)
-            Force accumulator [N], added to in place.
+        Parameters as :meth:`ForceTerm.eval_force_discrete`.
         """
         d0, d, lbar, l1 = step_pairs(self.incidence, q0, q1)
         lbar += l1
