@@ -254,7 +254,8 @@ class LinearSolver(ABC):
         """Solve ``A x = b``; ``x0`` is an initial guess for iterative methods.
 
         ``rtol`` replaces :attr:`rtol` for this solve (iterative solvers; e.g. the forcing term of an
-        inexact Newton iteration); direct solvers solve to round-off whatever it is.
+        inexact Newton iteration): it is passed down as an argument, the solver's own :attr:`rtol` is never
+        changed; direct solvers solve to round-off whatever it is.
         Runs with one BLAS thread (:func:`springsim._threads.single_blas_thread`).
 
         Parameters
@@ -286,16 +287,11 @@ class LinearSolver(ABC):
             return LinearSolveResult(np.zeros(0), True, 0, 0.0, self.name, backward_error=0.0)
         if rtol is not None and not rtol >= 0:
             raise ValueError(f"rtol must be >= 0, got {rtol}")
-        saved = self.rtol
-        if rtol is not None:
-            self.rtol = float(rtol)
-        try:
-            with single_blas_thread():
-                return self._solve(A, b, x0)
-        finally:
-            self.rtol = saved
+        with single_blas_thread():
+            return self._solve(A, b, x0, self.rtol if rtol is None else float(rtol))
 
     @abstractmethod
-    def _solve(self, A, b: np.ndarray, x0: np.ndarray | None) -> LinearSolveResult:
+    def _solve(self, A, b: np.ndarray, x0: np.ndarray | None, rtol: float) -> LinearSolveResult:
+        """Solve the wrapped system ``A x = b`` to the relative tolerance ``rtol`` (subclasses implement it)."""
         ...
 

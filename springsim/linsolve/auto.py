@@ -63,7 +63,7 @@ class LinearSolverAuto(LinearSolver):
         return self._rtol
 
     @rtol.setter
-    def rtol(self, value: float) -> None:  # the sub-solvers follow (a per-solve rtol included)
+    def rtol(self, value: float) -> None:  # the sub-solvers follow (a per-solve rtol is passed to them instead)
         self._rtol = value
         for solver in getattr(self, "_solvers", {}).values():
             solver.rtol = value
@@ -105,10 +105,10 @@ class LinearSolverAuto(LinearSolver):
             return "amg-cg", f"{n} DOFs > {self.direct_max_dofs}, symmetric matrix"
         return "amg-gmres", f"{n} DOFs > {self.direct_max_dofs}, non-symmetric matrix"
 
-    def _solve(self, A, b, x0):
+    def _solve(self, A, b, x0, rtol):
         choice, self.last_reason = self._choose(A)
         self.last_choice = choice
-        res = self._solvers[choice]._solve(A, b, x0)  # A is already wrapped by solve()
+        res = self._solvers[choice]._solve(A, b, x0, rtol)  # A is already wrapped by solve()
         res.method = f"auto:{res.method}"
         res.info = dict(res.info, auto_choice=choice)
         return res

@@ -35,7 +35,7 @@ class LinearSolverDense(LinearSolver):
         self.backward_tol = float(backward_tol)
         self.refine = int(refine)
 
-    def _solve(self, A, b, x0):
+    def _solve(self, A, b, x0, rtol):
         t0 = time.perf_counter()
         D = A.toarray()
         # LAPACK getrf directly: it reports an exactly zero pivot in ``info`` (lu_factor warns instead)

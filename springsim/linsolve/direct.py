@@ -138,7 +138,7 @@ class LinearSolverDirect(LinearSolver):
         """The solution with the factors ``lu`` refined (:func:`refine`) by at most ``steps`` steps."""
         return refine(csc, lu.solve, b, lu.solve(b), A_norm=A_norm, tol=self.backward_tol, steps=steps)
 
-    def _solve(self, A, b, x0):
+    def _solve(self, A, b, x0, rtol):
         t0 = time.perf_counter()
         csc = A.tocsc()
         A_norm = inf_norm(csc)

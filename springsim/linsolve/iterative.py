@@ -92,7 +92,7 @@ class LinearSolverIterative(LinearSolver):
             return None
         return x0 if np.linalg.norm(b - A @ x0) < np.linalg.norm(b) else None
 
-    def _solve(self, A, b, x0):
+    def _solve(self, A, b, x0, rtol):
         x0 = self._initial_guess(A, b, x0)
         P = self.preconditioner
         maxiter = int(self.maxiter) if self.maxiter is not None else P.default_maxiter(b.size)
@@ -102,7 +102,7 @@ class LinearSolverIterative(LinearSolver):
         if apply is None:  # e.g. a singular diagonal block: not an SPD matrix
             x, info = np.zeros_like(b), KrylovInfo(0, 1.0, "singular diagonal")
         else:
-            x, info = self.krylov(op, b, apply, x0, rtol=self.rtol, atol=self.atol,
+            x, info = self.krylov(op, b, apply, x0, rtol=rtol, atol=self.atol,
                                   maxiter=P.budget(maxiter, fresh))
         stale = False
         if not fresh and info.breakdown is not None:  # a reused operator too slow or broken: rebuild, continue
@@ -113,16 +113,17 @@ class LinearSolverIterative(LinearSolver):
             setup_s += s2
             t0 += s2
             restart = x if (np.all(np.isfinite(x)) and info.residual < 1.0) else x0
-            x, info2 = self.krylov(op, b, apply, restart, rtol=self.rtol, atol=self.atol, maxiter=maxiter)
+            x, info2 = self.krylov(op, b, apply, restart, rtol=rtol, atol=self.atol, maxiter=maxiter)
             fresh_iterations = info2.iterations  # the new hierarchy's own count: its baseline
             info2.iterations += info.iterations
             info = info2
         P.record(fresh_iterations if stale else info.iterations, fresh, info.breakdown is None)
         details = dict(P.describe(), rebuilt=fresh, stale_rebuild=stale, warm_start=x0 is not None,
                        breakdown=info.breakdown)
-        return self._finish(A, b, x, info, setup_s, time.perf_counter() - t0, details)
+        return self._finish(A, b, x, info, setup_s, time.perf_counter() - t0, details, rtol)
 
-    def _finish(self, A, b, x, info: KrylovInfo, setup_s: float, solve_s: float, details: dict) -> LinearSolveResult:
+    def _finish(self, A, b, x, info: KrylovInfo, setup_s: float, solve_s: float, details: dict,
+                rtol: float) -> LinearSolveResult:
         """The result of a Krylov run, handed to the fallback on breakdown."""
         if info.breakdown is None:
             return LinearSolveResult(x, True, info.iterations, info.residual, self.name, setup_s, solve_s,
@@ -132,7 +133,7 @@ class LinearSolverIterative(LinearSolver):
             return LinearSolveResult(x, False, info.iterations, info.residual, self.name, setup_s, solve_s,
                                      failure=reason, info=details)
         t0 = time.perf_counter()
-        d = self.fallback._solve(A, b, None)  # A is already wrapped, and the thread policy applied, by solve()
+        d = self.fallback._solve(A, b, None, rtol)  # A is already wrapped, and the thread policy applied, by solve()
         details.update(fallback_info=d.info, krylov_residual=info.residual)
         return LinearSolveResult(d.x, d.converged, info.iterations, d.residual, f"{self.name}->{d.method}",
                                  setup_s + d.setup_s, solve_s + (time.perf_counter() - t0) - d.setup_s,

@@ -28,7 +28,7 @@ class Unreliable(LinearSolver):
         super().__init__(**kw)
         self.fail_on, self.calls = set(fail_on), 0
 
-    def _solve(self, A, b, x0):
+    def _solve(self, A, b, x0, rtol):
         self.calls += 1
         x = np.linalg.solve(A.toarray(), b)
         if self.calls in self.fail_on:
@@ -154,10 +154,10 @@ def test_failed_linear_solve_is_retried_by_the_adaptive_driver():
 def test_non_finite_solution_stops_the_run_with_frames():
     """A solve with no usable solution (NaN) ends the run with SimulationError caused by SolverError, frames kept."""
     class Broken(Unreliable):
-        def _solve(self, A, b, x0):
+        def _solve(self, A, b, x0, rtol):
             if self.calls == 2:
                 return LinearSolveResult(np.full_like(b, np.nan), False, 0, np.inf, self.name, failure="broke")
-            return super()._solve(A, b, x0)
+            return super()._solve(A, b, x0, rtol)
 
     m = _pendulum()
     with pytest.raises(SimulationError) as e:
