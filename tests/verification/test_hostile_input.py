@@ -463,9 +463,9 @@ def test_solves_run_with_one_blas_thread():
     solver = make_linear_solver("dense")
     real = solver._solve
 
-    def spy(A, b, x0):
+    def spy(A, b, x0, rtol):
         seen.append([i["num_threads"] for i in threadpoolctl.threadpool_info() if i["user_api"] == "blas"])
-        return real(A, b, x0)
+        return real(A, b, x0, rtol)
 
     solver._solve = spy
     with threadpoolctl.threadpool_limits(limits=2, user_api="blas"):
