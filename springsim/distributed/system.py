@@ -321,9 +321,11 @@ class DistributedSystem(System):
         out[...] = self.w.array.reshape(-1, 3)
         return out
 
-    def forces(self, q_own, v_own, out=None, *, damping_geometry=None):
-        """Total force [N] on the owned particles (n_own, 3) at the global state whose owned parts are given."""
-        self.exchange(q_own, v_own, geometry=damping_geometry)
+    def forces(self, q_own, v_own, out=None, *, damping_geometry=None, exchange: bool = True):
+        """Total force [N] on the owned particles (n_own, 3) at the global state whose owned parts are given
+        (``exchange=False``: the local arrays were filled from them already)."""
+        if exchange:
+            self.exchange(q_own, v_own, geometry=damping_geometry)
         t0 = time.perf_counter()
         n, f = self.part.n_own, self.f_loc
         g = None if damping_geometry is None else self.g_loc
@@ -347,20 +349,31 @@ class DistributedSystem(System):
             t.eval_force_discrete(self.q0_loc[:n], self.q_loc[:n], self.v_loc[:n], f[:n])
         return self._reverse_add(f, out)
 
+    def _local_potential(self, q_loc) -> float:
+        n = self.part.n_own
+        local = sum(float(t.potential_energy(q_loc)) for t in self.pair_terms if t.conservative)
+        return local + sum(float(t.potential_energy(q_loc[:n])) for t in self.particle_terms if t.conservative)
+
+    def _local_dissipation(self, g_loc, v_loc) -> float:
+        n = self.part.n_own
+        local = sum(float(t.dissipation(g_loc, v_loc)) for t in self.pair_terms if t.dissipative)
+        return local + sum(float(t.dissipation(g_loc[:n], v_loc[:n])) for t in self.particle_terms if t.dissipative)
+
     def potential_energy(self, q) -> float:
         self.exchange(q)
-        n = self.part.n_own
-        local = sum(float(t.potential_energy(self.q_loc)) for t in self.pair_terms if t.conservative)
-        local += sum(float(t.potential_energy(self.q_loc[:n])) for t in self.particle_terms if t.conservative)
-        return self.sum(local)
+        return self.sum(self._local_potential(self.q_loc))
 
     def dissipation(self, geometry, qd) -> float:
         self.exchange(geometry, qd)
-        n = self.part.n_own
-        local = sum(float(t.dissipation(self.q_loc, self.v_loc)) for t in self.pair_terms if t.dissipative)
-        local += sum(float(t.dissipation(self.q_loc[:n], self.v_loc[:n])) for t in self.particle_terms
-                     if t.dissipative)
-        return self.sum(local)
+        return self.sum(self._local_dissipation(self.q_loc, self.v_loc))
+
+    def stage_terms(self, q, qd, out, geometry):
+        """One ghost exchange for the forces and both potentials, and one reduction for the potentials."""
+        self.exchange(q, qd, geometry=geometry)
+        self.forces(q, qd, out, damping_geometry=geometry, exchange=False)
+        both = self.mpi.allreduce(np.array([self._local_potential(self.q_loc),
+                                            self._local_dissipation(self.g_loc, self.v_loc)]))
+        return float(both[0]), float(both[1])
 
     # -- assembly --------------------------------------------------------------------------------------------------
     def assemble(self, q_own, v_own, a: float, b: float, mode: str, *, q_start=None, damping_geometry=None):

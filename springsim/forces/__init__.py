@@ -47,7 +47,7 @@ def make_force_terms(model, *, skip_fixed: bool = True, kernels: str = "auto") -
     return [t for t in terms if t is not None]
 
 
-def eval_forces(terms, q, qd, out: np.ndarray | None = None) -> np.ndarray:
+def eval_forces(terms, q, qd, out: np.ndarray | None = None, *, damping_geometry=None) -> np.ndarray:
     """Total force (N, 3) [N] of ``terms`` at ``(q, qd)``.
 
     The sum starts from the first term's :meth:`~ForceTerm.constant_force` when it has one (a copy, where
@@ -63,6 +63,8 @@ def eval_forces(terms, q, qd, out: np.ndarray | None = None) -> np.ndarray:
         Velocities [m/s] of all particles.
     out : ndarray, shape (N, 3), optional
         Output array, overwritten; default a new one.
+    damping_geometry : ndarray, shape (N, 3), optional
+        Positions at which the dissipative terms take their geometry (:meth:`ForceTerm.eval_force`).
 
     Returns
     -------
@@ -77,7 +79,10 @@ def eval_forces(terms, q, qd, out: np.ndarray | None = None) -> np.ndarray:
     else:
         np.copyto(f, start)
     for t in (terms[1:] if start is not None else terms):
-        t.eval_force(q, qd, f)
+        if damping_geometry is None:
+            t.eval_force(q, qd, f)
+        else:
+            t.eval_force(q, qd, f, damping_geometry=damping_geometry)
     return f
 
 

@@ -303,11 +303,12 @@ class ImplicitIntegrator(Integrator):
         """
         if not self._energy_guarded:
             return None
-        e0, e1 = self.mechanical_energy(q, v), self.mechanical_energy(q1, v1)
+        t0 = 0.5 * self.system.dot(self._mass * v, v)
+        v0 = self.system.potential_energy(q)
+        e0, e1 = t0 + v0, self.mechanical_energy(q1, v1)
         if self._energy_ceiling is None or (e0 > self._energy_ceiling and not self._continues(q, v)):
             self._energy_ceiling = e0
-        t0 = 0.5 * self.system.dot(self._mass * v, v)
-        scale = t0 + abs(e0 - t0) + self._weight_scale
+        scale = t0 + abs(v0) + self._weight_scale
         self._last_output = (q1, v1)
         gain = e1 - self._energy_ceiling
         return gain if gain > ENERGY_GAIN * scale else None

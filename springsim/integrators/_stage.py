@@ -399,13 +399,13 @@ class StageSolver:
         stage force."""
         sysm = self.system
         t0 = time.perf_counter()
-        sysm.forces(q, v, f, damping_geometry=geometry)
+        potential, dissipation = sysm.stage_terms(q, v, f, geometry)
         dv = v - v_hat
         inertia = self._mass * dv
         grad = inertia / c - f  # -R / c, a force [N]
         grad[sysm.fixed] = 0.0
         kinetic = 0.5 * sysm.dot(inertia, dv)
-        energy = kinetic + sysm.potential_energy(q) + c * sysm.dissipation(geometry, v)
+        energy = kinetic + potential + c * dissipation
         gnorm = sysm.norm(grad)
         scale = sysm.norm(inertia) / c + sysm.norm(f) + self._weight_norm()
         self._force_s += time.perf_counter() - t0

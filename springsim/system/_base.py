@@ -110,6 +110,13 @@ class System(ABC):
         """Rayleigh dissipation function ``1/2 qd^T D qd`` [W] of the dissipative terms with their geometry at
         ``geometry``, summed over every process (:meth:`springsim.forces.ForceTerm.dissipation`)."""
 
+    def stage_terms(self, q: np.ndarray, qd: np.ndarray, out: np.ndarray, geometry: np.ndarray) -> tuple[float, float]:
+        """:meth:`forces` with ``damping_geometry=geometry`` into ``out``, and ``(potential_energy(q),
+        dissipation(geometry, qd))``: what a minimisation stage evaluates at each trial (a backend may share the
+        work of the three, as the PETSc one shares its ghost exchange)."""
+        self.forces(q, qd, out, damping_geometry=geometry)
+        return self.potential_energy(q), self.dissipation(geometry, qd)
+
     # -- stage matrices and solves ------------------------------------------------------------------------------
     @abstractmethod
     def assemble(self, q: np.ndarray, qd: np.ndarray, a: float, b: float, mode: str, *,

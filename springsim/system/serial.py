@@ -81,12 +81,7 @@ class SerialSystem(System):
 
     # -- forces -------------------------------------------------------------------------------------------------
     def forces(self, q, qd, out, *, damping_geometry=None):
-        if damping_geometry is None:
-            return eval_forces(self.terms, q, qd, out=out)
-        out.fill(0.0)
-        for t in self.terms:
-            t.eval_force(q, qd, out, damping_geometry=damping_geometry)
-        return out
+        return eval_forces(self.terms, q, qd, out=out, damping_geometry=damping_geometry)
 
     def forces_discrete(self, q0, q1, qd, out):
         return eval_forces_discrete(self.terms, q0, q1, qd, out)
