@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from springsim.forces import JACOBIAN_MODES
 from springsim.integrators import make_integrator
 from springsim.scene.gallery import BENCHMARK_DT, benchmark_cloth
 
@@ -116,7 +117,7 @@ def main(argv=None):
     p.add_argument("--integrator", default="linearized_implicit")
     p.add_argument("--solver", default="amg-cg")
     p.add_argument("--rtol", type=float, default=None)
-    p.add_argument("--jacobian", default=None, choices=["exact", "symmetric", "spd"])
+    p.add_argument("--jacobian", default=None, choices=list(JACOBIAN_MODES))
     p.add_argument("--kd", type=float, default=0.0, help="spring damping [N s/m] of the benchmark cloth (default 0)")
     p.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
                    help="extra solver option (value parsed as JSON when possible), e.g. near_nullspace=translations")

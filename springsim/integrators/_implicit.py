@@ -174,6 +174,7 @@ class ImplicitIntegrator(Integrator):
         self._weight_scale = self.system.sum(float(np.sum(self.system.free_rows(self.system.particle_mass)))) * g
         #: Whether failed steps are retaken in substeps (the adaptive driver turns it off: it retries smaller).
         self.retake = True
+        self._recent_acceleration = None  # of the last (sub)step taken, for :meth:`predict`
 
     #: Options each stage rule leaves unused (:func:`~springsim.integrators.make_integrator` warns about them)
     RULE_UNUSED = {"minimize": frozenset({"newton_tol", "residual_rtol", "line_search", "escalate_jacobian",
@@ -207,17 +208,43 @@ class ImplicitIntegrator(Integrator):
         super().reset()
         self.stage.reset()
         self._energy_ceiling, self._last_output = None, None
+        self._recent_acceleration = None
 
     def blowup_hint(self) -> str:
         return "try a smaller time step"
 
     # -- stages ---------------------------------------------------------------------------------------------------
     def solve_stage(self, q_hat: np.ndarray, v_hat: np.ndarray, c: float, v0: np.ndarray, stats: StepStats,
-                    *, maxiter: int | None = None, converge: bool = True, final_residual: bool = True):
-        """Solve ``c F(q_hat + c v, v) = M (v - v_hat)`` for ``v`` from ``v0``: ``(q, v, ok)``
-        (:meth:`springsim.integrators._stage.StageSolver.solve`, with this method's stage force and matrix)."""
+                    *, maxiter: int | None = None, converge: bool = True, final_residual: bool = True,
+                    guesses=()):
+        """Solve ``c F(q_hat + c v, v) = M (v - v_hat)`` for ``v`` from ``v0`` (or the best of ``guesses``):
+        ``(q, v, ok)`` (:meth:`springsim.integrators._stage.StageSolver.solve`, with this method's stage force and
+        matrix)."""
         return self.stage.solve(q_hat, v_hat, c, v0, stats, maxiter=maxiter, converge=converge,
-                                final_residual=final_residual, **self.stage_overrides())
+                                final_residual=final_residual, guesses=guesses, **self.stage_overrides())
+
+    def predict(self, v: np.ndarray, dt: float) -> list:
+        """Predictors of the velocity ``dt`` [s] after a state with velocity ``v``: ``[v + dt a]`` with ``a`` the
+        mean acceleration of the last (sub)step this integrator took successfully, or ``[]`` before the first
+        one, after a failed attempt and after :meth:`reset`. A stage started from it converges to the same
+        minimiser (the stage rule picks the lower ``E``: :mod:`~springsim.integrators._stage`, "Starting point").
+
+        Parameters
+        ----------
+        v : ndarray, shape (n, 3)
+            Velocity [m/s] the prediction starts from.
+        dt : float
+            How far ahead [s].
+
+        Returns
+        -------
+        list of ndarray
+            Zero or one predicted velocity.
+        """
+        a = self._recent_acceleration
+        if a is None or a.shape != v.shape:
+            return []
+        return [v + dt * a]
 
     def stage_overrides(self) -> dict:
         """``forces`` and ``matrix`` replacing the system's in the stages (none: the method's stage balances the
@@ -245,12 +272,15 @@ class ImplicitIntegrator(Integrator):
         for _ in range(n):
             if self.jacobian == "mixed":  # the step's stages continue from its input, whatever came before
                 self.system.linearize_at(q1)
+            v_in = v1
             try:
                 q1, v1 = self.advance(q1, v1, h / n, stats)
             except SolverError as e:  # a linear solve with no finite solution: smaller substeps, or the error
                 stats.fail(str(e))
+                self._recent_acceleration = None
                 return q1, v1, False, e
             ok = ok and stats.ok
+            self._recent_acceleration = (v1 - v_in) * (n / h) if ok else None
             if not ok and not last:
                 break
         return q1, v1, ok, None

@@ -62,13 +62,26 @@ Three rules decide how the iteration is globalised and when it stops (``stage_so
 
 Linearized implicit Euler is one plain iteration of any of them (``converge=False``).
 
+Starting point. A stage starts from the velocity its method gives (``v0``: the step's input velocity, or the
+previous stage's); the integrators also offer predictors (:meth:`ImplicitIntegrator.predict
+<springsim.integrators.ImplicitIntegrator.predict>`: the input velocity advanced with the acceleration of the
+last step taken), and the ``minimize`` rule starts from whichever has the lowest ``E``, one evaluation of ``E``
+each. The start does not change what the stage converges to (the minimiser, to the tolerance), only how many
+iterations it takes: on the benchmark cloth (n = 16, h = 1/60 s) implicit Euler needs 3.5, 5.2 and 15.6 Newton
+iterations per step at ke = 1e4, 1e6 and 1e8 instead of 4.5, 7.3 and 24.3 from the input velocity.
+
 Forcing. With ``forcing="eisenstat-walker"`` the linear solves of a stage run to convergence are inexact
 Newton steps (Dembo, Eisenstat and Steihaug 1982): each solve of ``A dv = R`` stops at the relative residual
 ``eta_k`` of Eisenstat and Walker (1996, choice 2; :func:`forcing_term`), never below the system's linear
 ``rtol``. An update from a loose solve can pass a stopping rule while the iterate is not converged, so it is
 confirmed by one more solve to ``rtol`` (:class:`StageForcing`).
 
-Linear solves. A solve that missed its criterion is still a usable search direction (inexact Newton) in a
+Linear solves. In a ``minimize`` stage a solve need not be more accurate than the stopping rule needs: a
+Newton step whose linear residual is ``eta |R|`` leaves a gradient of about ``eta |grad E|`` plus the
+quadratic remainder, so the solve from an iterate with ``|grad E| = g`` stops at the relative residual
+``max(rtol, min(0.5 tol / g, 0.1))`` (``tol`` the stage's stopping tolerance, ``rtol`` the system's): the
+solver's own tolerance while the gradient is far above ``tol``, looser in the last iterations (the
+gradient at the new iterate, evaluated exactly, still decides). A solve that missed its criterion is still a usable search direction (inexact Newton) in a
 stage whose own stopping rule then certifies the result (counted in
 ``StepStats.extra["recovered_linear_failures"]``); in a stage that does not converge, and in linearized
 implicit Euler, it fails the step (``StepStats.linear_failures``). A non-finite solution ends the step with
@@ -95,6 +108,9 @@ STAGE_SOLVERS = ("minimize", "residual", "pa2")
 FORCING_RULES = ("fixed", "eisenstat-walker")
 #: Armijo's sufficient-decrease constant.
 _ARMIJO = 1e-4
+#: A minimisation stage's linear solve need not leave a residual below this share of the stopping tolerance
+#: (module docstring, "Linear solves"), nor be looser than ``_SOLVE_LOOSEST``.
+_SOLVE_SHARE, _SOLVE_LOOSEST = 0.5, 0.1
 
 
 def forcing_term(k: int, rnorm: float, rnorm_prev: float, eta_prev: float, *, eta_max: float, floor: float) -> float:
@@ -315,7 +331,7 @@ class StageSolver:
 
     # -- the public entry point ---------------------------------------------------------------------------------
     def solve(self, q_hat, v_hat, c: float, v0, stats: StepStats, *, maxiter: int | None = None,
-              converge: bool = True, final_residual: bool = True, forces=None, matrix=None):
+              converge: bool = True, final_residual: bool = True, forces=None, matrix=None, guesses=()):
         """Solve the stage from ``v0``: ``(q, v, ok)``.
 
         Parameters
@@ -337,6 +353,9 @@ class StageSolver:
             one force evaluation saved).
         forces, matrix : callable, optional
             ``forces(q, v, out)`` and ``matrix(q, v, c, mode)`` replacing the system's (residual and pa2 rules).
+        guesses : sequence of ndarray (n, 3), optional
+            Other starting velocities (predictors); the ``minimize`` rule starts from whichever of ``v0`` and
+            these has the lowest ``E`` (module docstring, "Starting point"); the other rules start from ``v0``.
 
         Returns
         -------
@@ -351,7 +370,7 @@ class StageSolver:
         v = np.array(v0, dtype=np.float64)
         v[self.system.fixed] = 0.0
         if converge and o.stage_solver == "minimize" and forces is None:
-            q, v, converged, why = self._minimize(q_hat, v_hat, c, v, stats, maxiter)
+            q, v, converged, why = self._minimize(q_hat, v_hat, c, v, stats, maxiter, guesses)
         else:
             q, v, converged, why = self._newton_escalating(q_hat, v_hat, c, v, stats, maxiter, converge,
                                                            final_residual or converge, forces, matrix)
@@ -411,7 +430,7 @@ class StageSolver:
         self._force_s += time.perf_counter() - t0
         return energy, grad, gnorm, kinetic, scale
 
-    def _minimize(self, q_hat, v_hat, c, v, stats, maxiter):
+    def _minimize(self, q_hat, v_hat, c, v, stats, maxiter, guesses=()):
         """Projected Newton with Armijo backtracking on the incremental potential (module docstring)."""
         o, sysm = self.options, self.system
         self._force_s = 0.0
@@ -419,6 +438,18 @@ class StageSolver:
         f = np.empty_like(v)
         q = q_hat + c * v
         E, grad, gnorm, kinetic, scale = self._potential(q, v, v_hat, c, geometry, f)
+        for guess in guesses:  # the start with the lowest E ("Starting point")
+            v_g = np.array(guess, dtype=np.float64)
+            v_g[sysm.fixed] = 0.0
+            if not sysm.all_finite(v_g):
+                continue
+            f_g = np.empty_like(f)
+            q_g = q_hat + c * v_g
+            trial = self._potential(q_g, v_g, v_hat, c, geometry, f_g)
+            if trial[0] < E:
+                v, q, f = v_g, q_g, f_g
+                E, grad, gnorm, kinetic, scale = trial
+                stats.extra["predicted_starts"] = stats.extra.get("predicted_starts", 0) + 1
         tol = o.force_atol + o.force_rtol * scale
         forcing = StageForcing(o.forcing, eta_max=o.forcing_max, floor=sysm.linear_rtol)
         converged, stagnated, step, alpha = gnorm <= tol, False, 0.0, 1.0
@@ -428,6 +459,11 @@ class StageSolver:
         while not converged and it < maxiter and np.isfinite(gnorm):
             R = sysm.gather(grad) * (-c)
             rtol = forcing.rtol(gnorm)
+            # no solve more accurate than the stopping rule needs ("Linear solves")
+            need = min(_SOLVE_SHARE * tol / gnorm, _SOLVE_LOOSEST)
+            by_need = need > (sysm.linear_rtol if rtol is None else rtol)
+            if by_need:
+                rtol = need
             slope = 0.0
             if exact:
                 # a stalled projected iteration (a slack, buckling cloth: the projection of the compressed springs
@@ -493,7 +529,7 @@ class StageSolver:
             stagnated = False
             if self.trace is not None:
                 self.trace.append((it, alpha, gnorm, tol, E))
-            if gnorm <= tol and forcing.certified(res.residual):
+            if gnorm <= tol and (by_need or forcing.certified(res.residual)):
                 converged = True
             elif flat >= 2:
                 stagnated = True

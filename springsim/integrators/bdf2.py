@@ -130,7 +130,7 @@ class IntegratorBDF2(ImplicitIntegrator):
             c = h * (1.0 + w) / den
             q_hat = ca * q - cb * q_prev
             v_hat = ca * v - cb * v_prev
-            q1, v1, ok = self.solve_stage(q_hat, v_hat, c, v, stats)
+            q1, v1, ok = self.solve_stage(q_hat, v_hat, c, v, stats, guesses=self.predict(v, h))
             c_est = c
             q1[self.fixed] = q[self.fixed]  # a1 q - a2 q_prev rounds: keep fixed particles bit-exact
             a1 = (v1 - v_hat) / c

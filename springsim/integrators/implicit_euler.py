@@ -23,5 +23,5 @@ class IntegratorImplicitEuler(ImplicitIntegrator):
     unused_options = frozenset({"filter_estimates"})  # no error estimate
 
     def advance(self, q, v, h, stats):
-        q1, v1, _ = self.solve_stage(q, v, h, v, stats)
+        q1, v1, _ = self.solve_stage(q, v, h, v, stats, guesses=self.predict(v, h))
         return q1, v1

@@ -72,7 +72,7 @@ class IntegratorTRBDF2(ImplicitIntegrator):
         # trapezoidal stage to t_n + gamma h
         c1 = 0.5 * g * h
         v_hat1 = v + c1 * a_n
-        q_g, v_g, ok1 = self.solve_stage(q + c1 * v, v_hat1, c1, v, stats)
+        q_g, v_g, ok1 = self.solve_stage(q + c1 * v, v_hat1, c1, v, stats, guesses=self.predict(v, g * h))
         if not ok1:  # the second stage would build on an unconverged one: the step is retaken smaller
             return q_g, v_g
         a_g = (v_g - v_hat1) / c1
@@ -80,7 +80,8 @@ class IntegratorTRBDF2(ImplicitIntegrator):
         c2 = h * (1.0 - g) / (2.0 - g)
         s, r = 1.0 / (g * (2.0 - g)), (1.0 - g) ** 2 / (g * (2.0 - g))
         v_hat2 = s * v_g - r * v
-        q1, v1, ok2 = self.solve_stage(s * q_g - r * q, v_hat2, c2, v_g, stats)
+        q1, v1, ok2 = self.solve_stage(s * q_g - r * q, v_hat2, c2, v_g, stats,
+                                       guesses=[v_g + ((1.0 - g) / g) * (v_g - v)])
         a1 = (v1 - v_hat2) / c2
         gain = self.gained_energy(q, v, q1, v1) if ok2 else None
         if gain is not None:

@@ -35,9 +35,12 @@ implicit system's 3x3 block structure:
   the cooldown doubles after every stale rebuild (up to ``max_cooldown``) and resets when reuse
   succeeds, so a fast-moving phase wastes one attempt per doubling. A matrix *near* the hierarchy's
   own (relative Frobenius change at most ``nearby``, estimated on an evenly strided sample of at most
-  about 32,768 blocks) is tried even during a cooldown: the Newton iterations of one implicit stage
-  change the matrix by ~1e-3 relative (and a hierarchy serves them), consecutive steps of a falling
-  cloth by 3-10e-2 (and it does not).
+  about 32,768 blocks) is tried even during a cooldown. The Newton iterations of one implicit stage serve
+  each other's hierarchies once the iterate is close (on the benchmark cloth at n = 64, with the ``mixed``
+  Jacobian: changes of 1e-5-4e-5 cost the same CG iterations as a fresh hierarchy, at ke = 1e4 and 1e6),
+  but not in the first iterations: changes of 1e-3-6e-3 (small in norm, but in the low-energy transverse
+  part of the matrix) cost 3-10x the iterations; consecutive steps of a falling cloth change it by
+  3-10e-2 (and a hierarchy does not serve them).
 
 The measurements behind these choices are in the linear-solver notes of BENCHMARKS.md#cloth-grid
 ("AMG design choices"); the current step times in BENCHMARKS.md#cloth-grid.
@@ -192,7 +195,7 @@ class AMGPreconditioner(Preconditioner):
     def __init__(self, *, near_nullspace: str = "rigid", fmt: str = "bsr", symmetry: str = "hermitian",
                  smoother: str = "block_gauss_seidel", max_coarse: int = 50, rebuild_factor: float = 2.0,
                  rebuild_slack: int = 4, reuse: bool = True, cooldown: int = 4, max_cooldown: int = 64,
-                 nearby: float = 0.02, kernels: str = "auto", sa_options: dict | None = None):
+                 nearby: float = 2e-4, kernels: str = "auto", sa_options: dict | None = None):
         from ._kernels import resolve_kernels
 
         super().__init__()
