@@ -12,7 +12,9 @@ from springsim.scene import load_scene
 SCENES = Path(__file__).resolve().parents[1] / "scenes"
 ALL = sorted(p.name for p in SCENES.glob("*.yaml"))
 
-# scene -> (steps, particle, final position [m]) with the scene's own solver settings
+# scene -> (steps, particle, final position [m]) with the scene's own solver settings. Implicit stages converge to
+# their force tolerance (force_rtol 1e-5 of the forces balanced), not to round-off: the pins hold to 1 um, as a change
+# of the iteration path (a better starting point) moves the result within that tolerance.
 PINNED = {
     "spring.yaml": (50, 1, [0.0, 0.0, -0.07761937250717124]),
     "damped_spring.yaml": (50, 1, [0.058953438211759024, 0.0, -0.1024655443278245]),
@@ -66,4 +68,4 @@ def test_scene_runs_and_pins_a_number(name):
     integrator = make_integrator(s.config.integrator, s.model, **s.config.integrator_options())
     traj = simulate(s.model, integrator, s.config.dt, steps, record=False)
     assert np.all(np.isfinite(traj.q)) and all(st.ok for st in traj.stats)
-    np.testing.assert_allclose(traj.q[-1, pid], expected, rtol=1e-6, atol=1e-9)
+    np.testing.assert_allclose(traj.q[-1, pid], expected, rtol=1e-6, atol=1e-6)

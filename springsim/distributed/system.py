@@ -349,6 +349,17 @@ class DistributedSystem(System):
             t.eval_force_discrete(self.q0_loc[:n], self.q_loc[:n], self.v_loc[:n], f[:n])
         return self._reverse_add(f, out)
 
+    def curvature_forces(self, q0, q1, out):
+        curved = [t for t in self.pair_terms if t.curved]
+        if self.all(not curved):  # no rank has a curved term
+            return None
+        self.exchange(q1, q_start=q0)
+        f = self.f_loc
+        f.fill(0.0)
+        for t in curved:
+            t.curvature_remainder(self.q0_loc, self.q_loc, f)
+        return self._reverse_add(f, out)
+
     def _local_potential(self, q_loc) -> float:
         n = self.part.n_own
         local = sum(float(t.potential_energy(q_loc)) for t in self.pair_terms if t.conservative)

@@ -157,6 +157,10 @@ class ForceTerm(ABC):
     #: semi-definite, whose Rayleigh function is :meth:`dissipation` (spring damping, drag).
     dissipative: ClassVar[bool] = False
 
+    #: Whether :meth:`curvature_remainder` adds anything (the term has lengths whose change is not linear in the
+    #: positions: springs).
+    curved: ClassVar[bool] = False
+
     #: Layouts of dF/dq and dF/dqd, or None where the term does not depend on q / qd.
     layout_q: BlockLayout | None = None
     layout_qd: BlockLayout | None = None
@@ -377,6 +381,19 @@ class ForceTerm(ABC):
             Dissipation function [W].
         """
         return 0.0
+
+    def curvature_remainder(self, q0: np.ndarray, q1: np.ndarray, out: np.ndarray) -> None:
+        """Add to ``out`` the force of the nonlinear remainder of the term's lengths between ``q0`` and ``q1``, along
+        the directions at ``q0`` (the second-order correction of a minimisation stage,
+        :mod:`springsim.integrators._stage`, "Curved steps"); nothing for terms without such lengths.
+
+        Parameters
+        ----------
+        q0, q1 : ndarray, shape (N, 3)
+            Positions [m] of the linearisation and of the trial.
+        out : ndarray, shape (N, 3)
+            Accumulator [N], added to in place.
+        """
 
     def potential_floor(self) -> float:
         """A lower bound [J] of :meth:`potential_energy` over all positions, or ``-inf``.

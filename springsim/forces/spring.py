@@ -86,6 +86,7 @@ class ForceSpring(ForceTerm):
     name = "spring"
     pairwise = True
     conservative = True  # the elastic part
+    curved = True  # spring lengths: the second-order correction of minimisation stages
     dissipative = True   # the damping, where a spring has it (declared per family, used per instance)
     #: Accepted values of ``kernels``.
     KERNELS = ("auto", "numba", "numpy")
@@ -299,6 +300,22 @@ class ForceSpring(ForceTerm):
 
     def jacobian_symmetric_discrete(self, mode: str) -> bool:
         return mode != "exact"
+
+    def curvature_remainder(self, q0, q1, out):
+        """Add ``-k r n0`` to the first particle of each spring and ``k r n0`` to the second, with
+        ``r = l(q1) - l(q0) - n0 . (d(q1) - d(q0))`` the second-order remainder of the spring's length (its
+        change beyond the linearisation at ``q0``: ``|dd_perp|^2 / (2 l)`` to leading order) and ``n0`` its
+        direction at ``q0``.
+
+        Parameters as :meth:`ForceTerm.curvature_remainder`.
+        """
+        d0, l0, n0, _ = pair_geometry(q0, self.pairs, self.eps)
+        d1 = self.incidence.diff(q1)
+        l1 = np.sqrt(np.einsum("ij,ij->i", d1, d1))
+        d1 -= d0
+        r = l1 - l0 - np.einsum("ij,ij->i", n0, d1)
+        n0 *= (-self.ke * r)[:, None]
+        self.incidence.scatter(n0, out)
 
     def potential_energy(self, q):
         d, l, n, near = pair_geometry(q, self.pairs, self.eps)

@@ -117,6 +117,12 @@ class System(ABC):
         self.forces(q, qd, out, damping_geometry=geometry)
         return self.potential_energy(q), self.dissipation(geometry, qd)
 
+    @abstractmethod
+    def curvature_forces(self, q0: np.ndarray, q1: np.ndarray, out: np.ndarray) -> np.ndarray | None:
+        """The forces [N] of the terms' length remainders between ``q0`` and ``q1``
+        (:meth:`springsim.forces.ForceTerm.curvature_remainder`) into ``out``, or None where no term (on any
+        process) has such lengths."""
+
     # -- stage matrices and solves ------------------------------------------------------------------------------
     @abstractmethod
     def assemble(self, q: np.ndarray, qd: np.ndarray, a: float, b: float, mode: str, *,

@@ -92,6 +92,15 @@ class SerialSystem(System):
     def dissipation(self, geometry, qd) -> float:
         return float(sum(t.dissipation(geometry, qd) for t in self.terms if t.dissipative))
 
+    def curvature_forces(self, q0, q1, out):
+        curved = [t for t in self.terms if t.curved]
+        if not curved:
+            return None
+        out.fill(0.0)
+        for t in curved:
+            t.curvature_remainder(q0, q1, out)
+        return out
+
     # -- stage matrices and solves ------------------------------------------------------------------------------
     def assemble(self, q, qd, a, b, mode, *, q_start=None, damping_geometry=None):
         return self.assembler.assemble(q, qd, a, b, mode, q_start=q_start, damping_geometry=damping_geometry)

@@ -74,6 +74,9 @@ def matrix(scene, out, partitioner="contiguous"):
     own = ds.part.local_particles[:ds.part.n_own]
     f = ds.forces(q[own], v[own])
     f_full, _ = ds.gather_full(f, f)
+    q2, _ = _state(model, seed=11)
+    curv = ds.curvature_forces(q[own], q2[own], np.empty((ds.part.n_own, 3)))
+    curv_full = None if curv is None else ds.gather_full(curv, curv)[0]
     mats = {}
     for mode in ("exact", "spd"):
         ds.assemble(q[own], v[own], 2.5e-4, 1.6e-2, mode)
@@ -83,7 +86,8 @@ def matrix(scene, out, partitioner="contiguous"):
             mats[mode] = A
     ghosts = ds.mpi.gather(ds.part.n_ghost)  # collective: every rank
     if ds.rank == 0:
-        np.savez(out, f=f_full[model.free_particles], size=ds.size, system_particles=ds.system_particles,
+        extra = {} if curv_full is None else {"curvature": curv_full[model.free_particles]}
+        np.savez(out, f=f_full[model.free_particles], size=ds.size, **extra, system_particles=ds.system_particles,
                  ghosts=np.array(ghosts),
                  **{f"{m}_{k}": getattr(A, k) for m, A in mats.items() for k in ("data", "indices", "indptr")})
     return 0

@@ -148,6 +148,15 @@ def test_gathered_matrix_equals_serial(name, ranks, partitioner, tmp_path):
     f = eval_forces(terms, q, v)[model.free_particles]
     assert int(d["size"]) == ranks
     assert np.abs(d["f"] - f).max() <= 1e-12 * np.abs(f).max()
+    # the second-order correction's forces (length remainders from q to another state) match the serial terms'
+    q2, _ = _state(model, seed=11)
+    curv = np.zeros_like(q)
+    for t in terms:
+        t.curvature_remainder(q, q2, curv)
+    assert ("curvature" in d.files) == any(t.curved for t in terms)
+    if "curvature" in d.files:
+        curv = curv[model.free_particles]
+        assert np.abs(d["curvature"] - curv).max() <= 1e-12 * np.abs(curv).max()
     asm = SystemAssembler(model, terms)
     free_index = np.full(model.particle_count, -1)
     free_index[model.free_particles] = np.arange(model.free_count)

@@ -177,3 +177,45 @@ def test_degenerate_core_is_continuous():
     fb = eval_forces(make_force_terms(below), below.particle_q, np.zeros((2, 3)))
     fa = eval_forces(make_force_terms(above), above.particle_q, np.zeros((2, 3)))
     assert rel_err(fb, fa) <= 1e-6
+
+
+def test_spring_curvature_remainder_closed_form():
+    """A 1 m spring (k = 1e8 N/m) whose end moves 1 mm across it: its length grows by sqrt(1 + 1e-6) - 1 (about
+    5e-7 m) where the linearisation sees no change; the remainder force is -k r along the old direction on the
+    first particle and +k r on the second. Moving along the spring leaves no remainder."""
+    b = ModelBuilder(gravity=0.0)
+    b.add_particle((0.0, 0.0, 0.0))
+    b.add_particle((1.0, 0.0, 0.0))
+    b.add_spring(0, 1, ke=1e8, kd=0.0, rest_length=1.0)
+    model = b.finalize()
+    (term,) = make_force_terms(model)
+    assert term.curved
+    q0 = model.particle_q.copy()
+    q1 = q0.copy()
+    q1[1, 1] += 1e-3
+    out = np.zeros_like(q0)
+    term.curvature_remainder(q0, q1, out)
+    r = np.sqrt(1.0 + 1e-6) - 1.0
+    np.testing.assert_allclose(out, [[1e8 * r, 0, 0], [-1e8 * r, 0, 0]], rtol=1e-9, atol=1e-12)
+    along = q0.copy()
+    along[1, 0] += 1e-3
+    out[...] = 0.0
+    term.curvature_remainder(q0, along, out)
+    assert np.abs(out).max() <= 1e-16 * 1e8
+
+
+def test_curvature_remainder_is_second_order():
+    """The remainder of every curved term is quadratic in the displacement (halving it quarters the remainder), and
+    terms without curved lengths add nothing."""
+    model = random_scene(np.random.default_rng(5))
+    q0 = model.particle_q
+    dq = 1e-3 * np.random.default_rng(1).standard_normal(q0.shape)
+    for term in make_force_terms(model):
+        big, small = np.zeros_like(q0), np.zeros_like(q0)
+        term.curvature_remainder(q0, q0 + dq, big)
+        term.curvature_remainder(q0, q0 + 0.5 * dq, small)
+        if not term.curved:
+            assert not big.any()
+            continue
+        assert np.abs(big).max() > 0.0
+        np.testing.assert_allclose(small, 0.25 * big, rtol=2e-3, atol=1e-12 * np.abs(big).max())
