@@ -55,7 +55,7 @@ def test_model_does_not_share_the_callers_arrays():
 
     model = random_scene(np.random.default_rng(1104))
     kw = {f.name: getattr(model, f.name) for f in dataclasses.fields(model)}
-    mine = {name: np.array(kw[name]) for name in ARRAYS}
+    mine = {name: np.array(getattr(model, name)) for name in ARRAYS}
     rebuilt = type(model)(**{**kw, **mine})
     for name in ARRAYS:
         mine[name][...] = 0
