@@ -97,9 +97,12 @@ def _term_arrays(name: str, cls, given: dict, n: int) -> dict:
 
 
 def _has_data(cls, data) -> bool:
-    """Whether a term's data does anything: a pair, or a value other than its default."""
+    """Whether a term's data does anything: a pair, or a value other than its default (for a term no longer
+    registered, whose defaults are unknown: a pair, or a value other than 0 and NaN)."""
     if cls is None:
-        return any(np.asarray(v).size for v in data.values())
+        if "indices" in data:
+            return bool(np.asarray(data["indices"]).size)
+        return any(np.any(np.nan_to_num(np.asarray(v, dtype=np.float64)) != 0) for v in data.values())
     if "indices" in data and data["indices"].shape[0]:
         return True
     for spec in cls.data:

@@ -156,3 +156,17 @@ def test_fixed_particles_never_move(name):
     assert np.all(tr.q[:, fixed] == model.particle_q[fixed])
     assert np.all(tr.qd[:, fixed] == 0.0)
     assert np.abs(tr.q[-1, ~fixed] - model.particle_q[~fixed]).max() > 0  # the others do move
+
+
+def test_fingerprints_of_existing_models_are_unchanged():
+    """The fingerprint of a model is the one it had before force terms declared their data (saved trajectories and
+    the reference cache record it): the former fields are hashed first, in their order, whatever is registered."""
+    from springsim.scene import benchmark_cloth
+
+    b = ModelBuilder()
+    i = b.add_particle((0, 0, 1), mass=0.1, fixed=True)
+    j = b.add_particle((0, 0, 0), mass=0.1, drag=0.2)
+    b.add_spring(i, j, stiffness=100.0, damping=0.5)
+    b.add_gravitational(0, 1, G=1.0)
+    assert b.finalize().fingerprint() == "745df68cb61f2ca0cf8f511a2619fc719176585df47e921b9361c2d28911e0ea"
+    assert benchmark_cloth(8).fingerprint().startswith("39348fa4421e5cc3")
