@@ -259,6 +259,14 @@ class Model:
         g[self.up_axis] = self.gravity
         return g
 
+    def dissipates(self) -> bool:
+        """Whether any dissipation coefficient of the model is non-zero (the arrays the force terms declare
+        ``dissipative``, :class:`springsim.forces.ArraySpec`: spring damping, drag)."""
+        from .forces._data import data_terms
+
+        return any(np.any(self.terms[name][spec.name] != 0) for name, cls in data_terms() if name in self.terms
+                   for spec in cls.data if spec.dissipative)
+
     def state(self) -> "State":
         """A fresh :class:`State` initialised from the model."""
         return State(self.particle_q.copy(), self.particle_qd.copy())

@@ -13,9 +13,10 @@ rank's **local particles** are, in this order: its owned free particles, the **g
 other ranks that its pairs touch) and the fixed particles its pairs touch. Two local models describe them:
 
 * the **pair model**: every local particle, the owned pairs (re-indexed), no gravity and none of the data of
-  the per-particle terms (drag, ...: their declared defaults). The pairwise force terms (:attr:`springsim.forces.ForceTerm.pairwise`) are built from it; their forces and
-  Jacobian blocks on ghost rows belong to the ghosts' owners and are sent there (forces by a reverse
-  scatter that adds, blocks as off-process COO entries).
+  the per-particle terms (drag, ...: their declared defaults). The pairwise force terms
+  (:attr:`springsim.forces.ForceTerm.pairwise`) are built from it; their forces and Jacobian blocks on
+  ghost rows belong to the ghosts' owners and are sent there (forces by a reverse scatter that adds, blocks
+  as off-process COO entries).
 * the **particle model**: the owned particles only, no pairs. The per-particle terms (gravity, drag, ...)
   are built from it, so each particle's own force is evaluated once, by its owner. Owned particles come
   first in the local order, so its indices are local indices too.

@@ -68,6 +68,9 @@ class ArraySpec:
         Other YAML keys (and builder keywords) accepted for it; giving two spellings is an error.
     sample : tuple of float, optional
         A typical range of values ``(lo, hi)``, for random test scenes; default from the bounds.
+    dissipative : bool
+        The array is a dissipation coefficient (a damping, a drag): a model whose values are not all zero
+        dissipates energy (:meth:`springsim.model.Model.dissipates`).
     doc : str
         One line of documentation.
     """
@@ -86,6 +89,7 @@ class ArraySpec:
     yaml_key: str | None = None
     aliases: tuple = ()
     sample: tuple | None = None
+    dissipative: bool = False
     doc: str = ""
 
     def __post_init__(self):

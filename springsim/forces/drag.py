@@ -24,7 +24,7 @@ class ForceDrag(ForceTerm):
     name = "drag"
     dissipative = True
     external = True
-    data = (ArraySpec("drag", per="particle", unit="N s/m", lo=0.0, sample=(0.1, 1.0),
+    data = (ArraySpec("drag", per="particle", unit="N s/m", lo=0.0, sample=(0.1, 1.0), dissipative=True,
                       doc="linear drag coefficient beta of F = -beta qd"),)
 
     def __init__(self, index, beta):

@@ -92,7 +92,7 @@ class ForceSpring(ForceTerm):
     data = (
         ArraySpec("stiffness", per="pair", unit="N/m", lo=0.0, required=True, aliases=("ke",), sample=(20.0, 200.0),
                   doc="stiffness ke"),
-        ArraySpec("damping", per="pair", unit="N s/m", lo=0.0, aliases=("kd",), sample=(0.1, 2.0),
+        ArraySpec("damping", per="pair", unit="N s/m", lo=0.0, aliases=("kd",), sample=(0.1, 2.0), dissipative=True,
                   doc="damping kd of the force along the spring (PA2 eq. 8)"),
         ArraySpec("rest_length", per="pair", unit="m", lo=0.0, computed=True,
                   doc="rest length l0; computed: the initial distance"),

@@ -366,7 +366,8 @@ def _ids(path: str, v, n: int) -> list:
 
 
 def _parse_pairs(group: str, items: list, n: int, specs) -> dict:
-    """Check the items of a pair term's list, whose per-pair arrays are ``specs`` (:class:`~springsim.forces.ArraySpec`).
+    """Check the items of a pair term's list, whose per-pair arrays are ``specs``
+    (:class:`~springsim.forces.ArraySpec`).
 
     Spec aliases are accepted for their canonical keys; ``out["aliases"]`` maps the index of every item that
     used one to {canonical: alias}, so that later errors can name the key as written. A computed array's value

@@ -308,3 +308,15 @@ def test_registry_rejects_clashing_data_names(monkeypatch):
     monkeypatch.setitem(FORCE_TERMS, "clash", Clash)
     with pytest.raises(ValueError, match="'particle_wind_area' is already taken by wind"):
         ModelBuilder().finalize()
+
+
+def test_dissipation_coefficients_are_declared(registered):
+    """``Model.dissipates`` reads the arrays declared ``dissipative`` (spring damping, drag), whatever the terms."""
+    assert _built().dissipates()  # the drag of particle 2
+    b = ModelBuilder()
+    b.add_particles(np.eye(3), None, 1.0, wind_area=0.3)
+    b.add_springs([[0, 1]], 10.0)
+    b.add_pairs("tether", [[1, 2]], k=1.0)
+    assert not b.finalize().dissipates()
+    b.add_springs([[1, 2]], 10.0, 0.5)
+    assert b.finalize().dissipates()
