@@ -224,9 +224,9 @@ class Model:
         data = self.terms.get(term)
         if data is None:  # a term registered after the model was built: its defaults
             data = _term_arrays(term, _registered()[term], {}, self.particle_count)
-        if array == "count":
-            return int(data["indices"].shape[0])
-        return data[array]
+        value = int(data["indices"].shape[0]) if array == "count" else data[array]
+        object.__setattr__(self, name, value)  # the next access is an ordinary one (the data never change)
+        return value
 
     def __reduce__(self):
         # The default would restore the fields without __init__: unpickled arrays would be writable.
@@ -260,8 +260,14 @@ class Model:
         return g
 
     def dissipates(self) -> bool:
-        """Whether any dissipation coefficient of the model is non-zero (the arrays the force terms declare
-        ``dissipative``, :class:`springsim.forces.ArraySpec`: spring damping, drag)."""
+        """Whether any dissipation coefficient of the model is non-zero.
+
+        Returns
+        -------
+        bool
+            True where an array its force terms declare ``dissipative`` (:class:`springsim.forces.ArraySpec`:
+            spring damping, drag) has a non-zero value.
+        """
         from .forces._data import data_terms
 
         return any(np.any(self.terms[name][spec.name] != 0) for name, cls in data_terms() if name in self.terms

@@ -118,11 +118,31 @@ class ArraySpec:
         return "must be " + ("finite and " if self.computed else "") + " and ".join(parts)
 
     def filled(self, count: int) -> np.ndarray:
-        """``count`` values equal to the default, shape ``(count,) + shape``."""
+        """``count`` values equal to the default.
+
+        Parameters
+        ----------
+        count : int
+            Number of items.
+
+        Returns
+        -------
+        ndarray, shape ``(count,) + shape``
+        """
         return np.full((count,) + tuple(self.shape), self.default, dtype=np.float64)
 
     def in_bounds(self, a: np.ndarray) -> np.ndarray:
-        """Which values of ``a`` (one per leading index) are within the bounds (every component; NaN is not)."""
+        """Which values of ``a`` are within the bounds (every component; NaN is not).
+
+        Parameters
+        ----------
+        a : ndarray, shape ``(k,) + shape``
+            Values, one per leading index.
+
+        Returns
+        -------
+        ndarray of bool, shape (k,)
+        """
         ok = np.ones(a.shape, dtype=bool)
         with np.errstate(invalid="ignore"):
             if self.lo is not None:
@@ -132,7 +152,14 @@ class ArraySpec:
         return ok.reshape(a.shape[0], int(np.prod(a.shape[1:], dtype=np.int64))).all(axis=1) if a.ndim > 1 else ok
 
     def sample_range(self) -> tuple[float, float]:
-        """``sample``, or a range inside the bounds (for random test scenes)."""
+        """A typical range of values, for random test scenes.
+
+        Returns
+        -------
+        tuple of float
+            ``sample``, or a range inside the bounds (from ``lo`` and ``hi`` where given, else from -1 or
+            ``lo`` to 1 above it).
+        """
         if self.sample is not None:
             return tuple(self.sample)
         lo = -1.0 if self.lo is None else float(self.lo)
@@ -140,9 +167,26 @@ class ArraySpec:
         return (lo + 0.1 * (hi - lo), hi - 0.1 * (hi - lo))
 
     def as_values(self, path: str, value, count: int | None) -> np.ndarray:
-        """``value`` (a scalar or one value to broadcast, or ``count`` values) as a float array of shape
-        ``(count,) + shape`` (``shape`` alone for ``count`` None: a per-model value); SceneError naming
-        ``path`` otherwise."""
+        """``value`` as the float array of ``count`` items (the shapes only; :meth:`validate` checks the values).
+
+        Parameters
+        ----------
+        path : str
+            Path of the value in error messages (``springs.stiffness``).
+        value : float or array_like
+            One value (broadcast to every item) or ``count`` of them.
+        count : int or None
+            Number of items; None: a per-model value (one of ``shape``).
+
+        Returns
+        -------
+        ndarray, shape ``(count,) + shape`` (``shape`` when ``count`` is None)
+
+        Raises
+        ------
+        SceneTypeError, SceneError
+            Not numbers, or the wrong shape.
+        """
         from ..builder import _numeric
         from ..errors import SceneError
 
@@ -160,9 +204,22 @@ class ArraySpec:
         return a
 
     def validate(self, group: str, a: np.ndarray, *, per_item: bool = True) -> None:
-        """Raise :class:`~springsim.errors.SceneError` at the first invalid value of ``a``:
-        ``group[k].key: must be finite, got nan`` or ``group[k].key: must be >= 0, got -3`` (``group.key`` for a
-        per-model value, ``per_item`` False). NaN passes where ``computed`` (it marks a computed value).
+        """Check the values of ``a`` against the bounds; NaN passes where ``computed`` (it marks a computed value).
+
+        Parameters
+        ----------
+        group : str
+            Path of the items in error messages (``springs``, ``particles``).
+        a : ndarray
+            The values, ``(k,) + shape`` (``shape`` when not ``per_item``).
+        per_item : bool
+            One value per item (False: one per-model value).
+
+        Raises
+        ------
+        SceneError
+            At the first invalid value: ``group[k].key: must be finite, got nan`` or
+            ``group[k].key: must be >= 0, got -3`` (``group.key`` for a per-model value).
         """
         from ..errors import SceneError
 
@@ -199,20 +256,46 @@ def _registry() -> dict:
 
 
 def data_terms(registry: dict | None = None) -> list[tuple[str, type]]:
-    """``(name, class)`` of the registered terms that declare data, in registry order."""
+    """The registered terms that declare data.
+
+    Parameters
+    ----------
+    registry : dict, optional
+        Name -> term class; default :data:`springsim.forces.FORCE_TERMS`.
+
+    Returns
+    -------
+    list of (str, type)
+        ``(name, class)`` in registry order.
+    """
     reg = _registry() if registry is None else registry
     return [(name, cls) for name, cls in reg.items() if cls.data]
 
 
 def term_group(name: str, cls) -> str:
-    """The path of a term's items in error messages and YAML: its :attr:`~springsim.forces.ForceTerm.yaml_key`
-    or its name."""
+    """The path of a term's items in error messages and YAML.
+
+    Parameters
+    ----------
+    name : str
+        The term's registry name.
+    cls : type
+        Its class.
+
+    Returns
+    -------
+    str
+        Its :attr:`~springsim.forces.ForceTerm.yaml_key`, or ``name``.
+    """
     return cls.yaml_key or name
 
 
-#: Names the model itself has (not term data).
-BASE_NAMES = ("particle_q", "particle_qd", "particle_mass", "particle_radius", "particle_fixed", "particle_count",
-              "terms", "gravity", "up_axis", "pair_epsilon", "cloth_grids", "metadata")
+def _model_names() -> set:
+    """The names the :class:`~springsim.model.Model` itself has (fields, properties, methods): not term data."""
+    from ..model import Model
+
+    return set(dir(Model)) | set(Model.__dataclass_fields__)
+
 
 _TABLE: dict = {"key": None, "table": None}
 
@@ -221,6 +304,17 @@ def term_attributes(registry: dict | None = None) -> dict[str, tuple[str, str]]:
     """Model attribute name -> ``(term, array)`` for every array of the registered terms: ``particle_<array>``
     (per particle), ``<term>_<array>`` (per pair and per model), ``<term>_indices`` (a pair list) and
     ``<term>_count`` (its length, array ``"count"``).
+
+    Parameters
+    ----------
+    registry : dict, optional
+        Name -> term class; default :data:`springsim.forces.FORCE_TERMS` (then the table is cached until the
+        registry changes).
+
+    Returns
+    -------
+    dict
+        Attribute name -> ``(term, array)``.
 
     Raises
     ------
@@ -232,9 +326,10 @@ def term_attributes(registry: dict | None = None) -> dict[str, tuple[str, str]]:
     if registry is None and _TABLE["key"] == key:
         return _TABLE["table"]
     table: dict[str, tuple[str, str]] = {}
+    base = _model_names()
 
     def claim(attr, term, array):
-        if attr in table or attr in BASE_NAMES:
+        if attr in table or attr in base:
             other = table[attr][0] if attr in table else "the model"
             raise ValueError(f"force term {term!r}: its data name {attr!r} is already taken by {other}")
         table[attr] = (term, array)

@@ -308,6 +308,14 @@ def test_registry_rejects_clashing_data_names(monkeypatch):
     monkeypatch.setitem(FORCE_TERMS, "clash", Clash)
     with pytest.raises(ValueError, match="'particle_wind_area' is already taken by wind"):
         ModelBuilder().finalize()
+    monkeypatch.delitem(FORCE_TERMS, "clash")
+
+    class Free(ForceTether):
+        name = "free"
+
+    monkeypatch.setitem(FORCE_TERMS, "free", Free)  # free_count is the model's own
+    with pytest.raises(ValueError, match="'free_count' is already taken by the model"):
+        ModelBuilder().finalize()
 
 
 def test_dissipation_coefficients_are_declared(registered):
