@@ -299,27 +299,40 @@ class Model:
             h.update(a.tobytes())
 
         table = term_attributes()
-        done = set()
         for name in FINGERPRINT_V1:
-            if name in table:
-                done.add(table[name])
-            elif not hasattr(type(self), name) and name not in self.__dict__:
-                continue
-            array(name, getattr(self, name))
+            if name in table or name in self.__dataclass_fields__:
+                array(name, getattr(self, name))
         for name in ("gravity", "up_axis", "pair_epsilon", "cloth_grids"):
             v = getattr(self, name)
             v = tuple(tuple(int(x) for x in g) for g in v) if name == "cloth_grids" else float(v)
             h.update(name.encode())
             h.update(repr(v).encode())
+        for name, v in self.data_beyond_v1():
+            array(name, v)
+        return h.hexdigest()
+
+    def data_beyond_v1(self) -> list[tuple[str, np.ndarray]]:
+        """The term data that :data:`FINGERPRINT_V1` does not cover, of the terms that have data (a pair, or a value
+        other than the default): what :meth:`fingerprint` hashes after the scalars, and what any other key of a
+        model's data (a cache key) must add to the V1 arrays.
+
+        Returns
+        -------
+        list of (str, ndarray)
+            ``("<term>.<array>", array)`` by term name, each term's pair list first, then its arrays in declared
+            order; empty for every model of the built-in terms.
+        """
+        from .forces._data import term_attributes
+
+        table = term_attributes()
+        done = {table[name] for name in FINGERPRINT_V1 if name in table}
         registry = _registered()
+        out = []
         for term in sorted(self.terms):
             data = self.terms[term]
-            if not _has_data(registry.get(term), data):
-                continue
-            for key, v in data.items():
-                if (term, key) not in done:
-                    array(f"{term}.{key}", v)
-        return h.hexdigest()
+            if _has_data(registry.get(term), data):
+                out.extend((f"{term}.{key}", v) for key, v in data.items() if (term, key) not in done)
+        return out
 
     def __repr__(self) -> str:
         from .forces._data import data_terms, term_group

@@ -328,3 +328,19 @@ def test_dissipation_coefficients_are_declared(registered):
     assert not b.finalize().dissipates()
     b.add_springs([[1, 2]], 10.0, 0.5)
     assert b.finalize().dissipates()
+
+
+def test_benchmark_reference_key_sees_the_terms_data(registered):
+    """The benchmarks' reference-cache key covers a new term's data (a cached reference never answers for a model
+    that differs only in it), and stays what it was for models without such data."""
+    from benchmarks.common import _model_key
+
+    m = _built()
+    assert [name for name, _ in m.data_beyond_v1()] == ["tether.indices", "tether.k", "wind.wind_area",
+                                                        "wind.pressure"]
+    terms = {name: dict(data) for name, data in m.terms.items()}
+    other = type(m)(m.particle_q, m.particle_qd, m.particle_mass, particle_fixed=m.particle_fixed, gravity=0.0,
+                    terms={**terms, "wind": dict(terms["wind"], pressure=[0.0, 1.0, 0.0])})
+    assert _model_key(m, 1.0, "auto", 1e-10) != _model_key(other, 1.0, "auto", 1e-10)
+    assert random_scene(np.random.default_rng(5), select=lambda c: c not in (ForceTether, ForceWind)
+                        ).data_beyond_v1() == []
