@@ -353,8 +353,9 @@ class ModelBuilder:
             Particle index pairs ``(i, j)``, ``i != j``.
         **arrays
             The term's per-pair arrays by name (or by an alias the spec declares): scalars (one value for every
-            pair) or arrays of shape (n,) (or (n, k) for a vector). Required ones must be given; the others
-            default to the declared default (NaN, or None: a computed value).
+            pair) or arrays of shape (n,) (or (n, k) for a vector). Required ones must be given; the others take
+            their declared defaults (for a ``computed`` array NaN or None means the value computed by
+            :meth:`finalize`).
 
         Returns
         -------

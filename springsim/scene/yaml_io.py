@@ -286,14 +286,29 @@ def _parse_solver(doc: dict, default_dt: float | None) -> tuple[SolverConfig, fl
 
 
 def _term_keys() -> list[tuple[str, type, str]]:
-    """``(term, class, YAML key)`` of every registered term with a pair list or per-model data, in registry order."""
-    return [(name, cls, term_group(name, cls)) for name, cls in data_terms()
-            if any(spec.per != "particle" for spec in cls.data)]
+    """``(term, class, YAML key)`` of every registered term with a pair list or per-model data, in registry order.
+
+    Raises ValueError when a term's YAML key is taken (by the format or another term): a registration error."""
+    out = [(name, cls, term_group(name, cls)) for name, cls in data_terms()
+           if any(spec.per != "particle" for spec in cls.data)]
+    _distinct("top-level", _TOP_KEYS + tuple(key for _, _, key in out))
+    return out
 
 
 def _particle_specs() -> list:
     """The per-particle :class:`~springsim.forces.ArraySpec` s of the registered terms, in registry order."""
-    return [spec for _, cls in data_terms() for spec in cls.data if spec.per == "particle"]
+    specs = [spec for _, cls in data_terms() for spec in cls.data if spec.per == "particle"]
+    _distinct("particle", _PARTICLE_KEYS + tuple(spec.key for spec in specs))
+    return specs
+
+
+def _distinct(what: str, keys: tuple) -> None:
+    seen = set()
+    for k in keys:
+        if k in seen:
+            raise ValueError(f"two force terms (or a force term and the scene format) declare the {what} YAML "
+                             f"key {k!r}")
+        seen.add(k)
 
 
 def _term_value(path: str, spec, v):

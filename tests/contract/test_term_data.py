@@ -344,3 +344,15 @@ def test_benchmark_reference_key_sees_the_terms_data(registered):
     assert _model_key(m, 1.0, "auto", 1e-10) != _model_key(other, 1.0, "auto", 1e-10)
     assert random_scene(np.random.default_rng(5), select=lambda c: c not in (ForceTether, ForceWind)
                         ).data_beyond_v1() == []
+
+
+def test_yaml_keys_of_terms_must_be_free(monkeypatch):
+    """A term whose YAML key the format (or another term) already uses is a registration error, not a silent
+    shadowing."""
+    class Plot(ForceTether):
+        name = "plotter"
+        yaml_key = "plot"
+
+    monkeypatch.setitem(FORCE_TERMS, "plotter", Plot)
+    with pytest.raises(ValueError, match="top-level YAML key 'plot'"):
+        load_scene(SCENE)
