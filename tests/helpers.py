@@ -103,8 +103,8 @@ def random_scene(rng, n: int = 8, *, springs: int = 12, damping: bool = True, gr
 
     The built-in terms have tuned distributions (below); any other term gets random data from its declared
     arrays (3 random pairs and one between fixed particles, values for about half the particles, per-model
-    values in each spec's sample range), drawn after the built-in ones, so the scenes of a seed stay the same
-    when terms are registered.
+    values in each spec's sample range), drawn after the built-in ones, so the built-in terms' data of a seed
+    stay the same when terms are registered.
 
     Parameters
     ----------
