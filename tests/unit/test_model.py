@@ -170,3 +170,17 @@ def test_fingerprints_of_existing_models_are_unchanged():
     b.add_gravitational(0, 1, G=1.0)
     assert b.finalize().fingerprint() == "745df68cb61f2ca0cf8f511a2619fc719176585df47e921b9361c2d28911e0ea"
     assert benchmark_cloth(8).fingerprint().startswith("39348fa4421e5cc3")
+
+
+def test_models_pickled_before_term_data_load():
+    """A model pickled by an earlier springsim (``_rebuild`` with the former fields, ``particle_drag``, ``spring_*``,
+    ``gravitational_*``, as keywords) unpickles to the same model, fingerprint included."""
+    from springsim.model import FINGERPRINT_V1, _rebuild
+
+    model = random_scene(np.random.default_rng(1106))
+    old = {name: np.array(getattr(model, name)) for name in FINGERPRINT_V1}
+    old.update(gravity=model.gravity, up_axis=model.up_axis, pair_epsilon=model.pair_epsilon,
+               cloth_grids=model.cloth_grids, metadata=dict(model.metadata))
+    clone = _rebuild(type(model), old)
+    assert clone.fingerprint() == model.fingerprint()
+    _assert_immutable(clone, model)
