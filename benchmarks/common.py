@@ -86,6 +86,9 @@ def _model_key(model, t_end: float, method: str, rtol: float) -> str:
                  "spring_stiffness", "spring_damping", "spring_rest_length", "gravitational_indices",
                  "gravitational_G"):
         h.update(np.ascontiguousarray(getattr(model, name)).tobytes())
+    for name, a in model.data_beyond_v1():  # the data of other force terms (none for the built-in ones)
+        h.update(name.encode())
+        h.update(np.ascontiguousarray(a).tobytes())
     h.update(repr((float(model.gravity), model.up_axis, t_end, method, rtol)).encode())
     return h.hexdigest()[:16]
 

@@ -3,7 +3,11 @@
 Single-item calls (``add_particle``, ``add_spring``, ``add_gravitational``) return the
 new item's index; their bulk twins (``add_particles``, ``add_springs``,
 ``add_gravitationals``) take arrays and return the index range, so a million springs
-are added without a Python loop. :meth:`ModelBuilder.finalize` validates everything
+are added without a Python loop. Every force term's data goes in through its declarations
+(:attr:`springsim.forces.ForceTerm.data`): :meth:`ModelBuilder.add_pairs` for a pair term (``add_springs``
+and ``add_gravitationals`` are thin wrappers), keywords of :meth:`ModelBuilder.add_particles` for per-particle
+arrays (``drag``), :meth:`ModelBuilder.set_term_data` for per-model ones.
+:meth:`ModelBuilder.finalize` validates everything
 and raises :class:`~springsim.errors.SceneError` naming the first offending item,
 with the same field paths as the YAML scene format (``springs[12].stiffness``).
 """
@@ -13,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from .errors import SceneError, SceneTypeError
+from .forces._data import data_terms, term_group
 from .model import AXES, ClothGrid, Model
 from .topology import PLANES, cloth_grid_pairs, cloth_pin_mask, index_mask
 
@@ -207,12 +212,15 @@ class ModelBuilder:
         self.gravity = gravity
         self.up_axis = up_axis
         self.pair_epsilon = pair_epsilon
-        self._particles: dict[str, list[np.ndarray]] = {k: [] for k in ("q", "qd", "mass", "radius", "drag", "fixed")}
-        self._springs: dict[str, list[np.ndarray]] = {k: [] for k in ("ij", "ke", "kd", "l0")}
-        self._gravs: dict[str, list[np.ndarray]] = {k: [] for k in ("ij", "G", "eps")}
+        self._particles: dict[str, list[np.ndarray]] = {k: [] for k in ("q", "qd", "mass", "radius", "fixed")}
+        #: (term, array) -> [(first particle, values)] of the per-particle term arrays given
+        self._particle_data: dict[tuple[str, str], list[tuple[int, np.ndarray]]] = {}
+        #: term -> array name ("indices" the pair list) -> chunks, and term -> pair count
+        self._pairs: dict[str, dict[str, list[np.ndarray]]] = {}
+        self._pair_counts: dict[str, int] = {}
+        #: term -> array name -> per-model value
+        self._model_data: dict[str, dict[str, np.ndarray]] = {}
         self._n_particles = 0
-        self._n_springs = 0
-        self._n_gravs = 0
         self.metadata: dict = {}
         self._cloth_grids: list[ClothGrid] = []
 
@@ -223,15 +231,40 @@ class ModelBuilder:
 
     @property
     def spring_count(self) -> int:
-        return self._n_springs
+        return self.pair_count("spring")
 
     @property
     def gravitational_count(self) -> int:
-        return self._n_gravs
+        return self.pair_count("gravitational")
+
+    def pair_count(self, term: str) -> int:
+        """Number of pairs of force term ``term`` added so far.
+
+        Parameters
+        ----------
+        term : str
+            A registered pair term (:data:`springsim.forces.FORCE_TERMS`).
+
+        Returns
+        -------
+        int
+        """
+        return self._pair_counts.get(term, 0)
+
+    @staticmethod
+    def _term(term: str, per: str):
+        """The registered class of ``term``, which must declare ``per`` arrays; ValueError otherwise."""
+        terms = dict(data_terms())
+        cls = terms.get(term)
+        if cls is None or not any(s.per == per for s in cls.data):
+            have = [name for name, c in terms.items() if any(s.per == per for s in c.data)]
+            raise ValueError(f"{term!r} is not a registered force term with per-{per} data; those are: "
+                             f"{', '.join(have) or 'none'}")
+        return cls
 
     # -- particles --------------------------------------------------------------
     def add_particle(self, pos, vel=(0.0, 0.0, 0.0), mass: float = 1.0, *, radius: float | None = None,
-                     drag: float = 0.0, fixed: bool = False) -> int:
+                     fixed: bool = False, **arrays) -> int:
         """Add one particle and return its index.
 
         Parameters
@@ -242,20 +275,21 @@ class ModelBuilder:
             Mass [kg], > 0.
         radius
             Drawing radius [m] (optional).
-        drag
-            Linear drag coefficient [N s/m] (``F = -drag * qd``), >= 0.
         fixed
             A fixed particle never moves (its velocity is forced to zero).
+        **arrays
+            The per-particle arrays of the force terms (:meth:`add_particles`), e.g. ``drag`` [N s/m].
         """
         start = self.add_particles([pos], [vel], mass, radius=np.nan if radius is None else radius,
-                                   drag=drag, fixed=fixed)
+                                   fixed=fixed, **arrays)
         return start.start
 
-    def add_particles(self, pos, vel=None, mass=1.0, *, radius=np.nan, drag=0.0, fixed=False) -> range:
+    def add_particles(self, pos, vel=None, mass=1.0, *, radius=np.nan, fixed=False, **arrays) -> range:
         """Add particles in bulk and return the range of their indices.
 
         ``pos`` has shape (n, 3); ``vel`` (n, 3) or None; ``mass``, ``radius``,
-        ``drag`` and ``fixed`` are scalars or arrays of shape (n,).
+        ``fixed`` and the term arrays are scalars or arrays of shape (n,) (a vector array: one vector or
+        (n, k)).
 
         Parameters
         ----------
@@ -267,10 +301,12 @@ class ModelBuilder:
             Particle masses [kg], > 0 (fixed particles may have any positive mass).
         radius : float or array_like, shape (n,)
             Radius [m] for drawing and scene files; NaN: none.
-        drag : float or array_like, shape (n,)
-            Linear drag coefficient [N s/m] (force ``-drag * qd``), >= 0.
         fixed : bool or array_like, shape (n,)
             Particles held at their initial position.
+        **arrays
+            The per-particle arrays the force terms declare (:attr:`springsim.forces.ForceTerm.data`), by name;
+            those not given take their declared defaults. Built in: ``drag``, the linear drag coefficient
+            [N s/m] (force ``-drag * qd``), >= 0, default 0.
 
         Returns
         -------
@@ -290,11 +326,111 @@ class ModelBuilder:
         p["qd"].append(qd.copy())
         p["mass"].append(_as_column("particles.mass", mass, n))
         p["radius"].append(_as_column("particles.radius", np.nan if radius is None else radius, n))
-        p["drag"].append(_as_column("particles.drag", drag, n))
         p["fixed"].append(_as_flags("particles.fixed", fixed, n))
+        specs = {s.name: (term, s) for term, cls in data_terms() for s in cls.data if s.per == "particle"}
+        for name in arrays:
+            if name not in specs:
+                raise TypeError(f"add_particles() got an unexpected keyword argument {name!r} (per-particle arrays "
+                                f"of the force terms: {', '.join(specs) or 'none'})")
         start = self._n_particles
+        for name, value in arrays.items():
+            term, spec = specs[name]
+            self._particle_data.setdefault((term, name), []).append(
+                (start, spec.as_values(f"particles.{spec.key}", value, n)))
         self._n_particles += n
         return range(start, self._n_particles)
+
+    # -- force-term data -------------------------------------------------------------
+    def add_pairs(self, term: str, indices, **arrays) -> range:
+        """Add pairs of force term ``term`` in bulk: ``indices`` (n, 2) and its declared per-pair arrays.
+
+        Parameters
+        ----------
+        term : str
+            A registered force term with per-pair data (:data:`springsim.forces.FORCE_TERMS`), e.g.
+            ``"spring"``.
+        indices : array_like of int, shape (n, 2)
+            Particle index pairs ``(i, j)``, ``i != j``.
+        **arrays
+            The term's per-pair arrays by name (or by an alias the spec declares): scalars (one value for every
+            pair) or arrays of shape (n,) (or (n, k) for a vector). Required ones must be given; the others take
+            their declared defaults (for a ``computed`` array NaN or None means the value computed by
+            :meth:`finalize`).
+
+        Returns
+        -------
+        range
+            Indices of the new pairs in the term's pair list.
+
+        Raises
+        ------
+        ValueError
+            ``term`` is not a registered pair term.
+        TypeError
+            An array the term does not declare.
+        SceneTypeError, SceneError
+            A missing required array, both spellings of one, or arrays of the wrong shape or type (naming
+            ``springs.stiffness``); values are checked by :meth:`finalize`.
+        """
+        cls = self._term(term, "pair")
+        group = term_group(term, cls)
+        specs = [s for s in cls.data if s.per == "pair"]
+        names = {a: s for s in specs for a in (s.name,) + tuple(s.aliases)}
+        for name in arrays:
+            if name not in names:
+                raise TypeError(f"add_pairs({term!r}) got an unexpected keyword argument {name!r} (its arrays: "
+                                f"{', '.join(s.name for s in specs)})")
+        values = {}
+        for s in specs:
+            given = [(a, arrays[a]) for a in (s.name,) + tuple(s.aliases) if arrays.get(a) is not None]
+            if len(given) > 1:
+                raise SceneError(group, f"give {s.name} or its alias {given[1][0]}, not both")
+            if given:
+                values[s.name] = (given[0][1], s.key if given[0][0] == s.name else given[0][0])
+            elif s.required:
+                alias = f" (or its alias {s.aliases[0]})" if s.aliases else ""
+                raise SceneTypeError(f"{group}.{s.key}", f"missing: give {s.key}{alias}")
+        ij = _as_pairs(f"{group}.particle_ids", indices)
+        n = ij.shape[0]
+        chunks = self._pairs.setdefault(term, {})
+        cols = {}
+        for s in specs:
+            v, spelled = values.get(s.name, (s.default, s.key))
+            cols[s.name] = s.as_values(f"{group}.{spelled}", v, n)
+        chunks.setdefault("indices", []).append(ij)
+        for name, col in cols.items():
+            chunks.setdefault(name, []).append(col)
+        start = self._pair_counts.get(term, 0)
+        self._pair_counts[term] = start + n
+        return range(start, start + n)
+
+    def set_term_data(self, term: str, **values) -> None:
+        """Set per-model arrays of force term ``term`` (those not set keep their declared defaults).
+
+        Parameters
+        ----------
+        term : str
+            A registered force term with per-model data.
+        **values
+            Its per-model arrays by name, each one value of the declared shape; checked by :meth:`finalize`.
+
+        Raises
+        ------
+        ValueError
+            ``term`` is not a registered term with per-model data.
+        TypeError
+            An array the term does not declare.
+        SceneTypeError, SceneError
+            A value of the wrong shape or type.
+        """
+        cls = self._term(term, "model")
+        specs = {s.name: s for s in cls.data if s.per == "model"}
+        for name, v in values.items():
+            if name not in specs:
+                raise TypeError(f"set_term_data({term!r}) got an unexpected keyword argument {name!r} (its "
+                                f"per-model arrays: {', '.join(specs)})")
+            self._model_data.setdefault(term, {})[name] = specs[name].as_values(
+                f"{term_group(term, cls)}.{specs[name].key}", v, None)
 
     # -- springs ------------------------------------------------------------------
     def add_spring(self, i: int, j: int, stiffness: float | None = None, damping: float | None = None,
@@ -350,16 +486,7 @@ class ModelBuilder:
         stiffness, damping = c["stiffness"][0], c["damping"][0]
         if stiffness is None:
             raise SceneTypeError("springs.stiffness", "missing: give stiffness (or its alias ke)")
-        ij = _as_pairs("springs.particle_ids", indices)
-        n = ij.shape[0]
-        s = self._springs
-        s["ij"].append(ij)
-        s["ke"].append(_as_column("springs.stiffness", stiffness, n))
-        s["kd"].append(_as_column("springs.damping", 0.0 if damping is None else damping, n))
-        s["l0"].append(_as_column("springs.rest_length", np.nan if rest_length is None else rest_length, n))
-        start = self._n_springs
-        self._n_springs += n
-        return range(start, self._n_springs)
+        return self.add_pairs("spring", indices, stiffness=stiffness, damping=damping, rest_length=rest_length)
 
     # -- gravitational pairs ---------------------------------------------------------
     def add_gravitational(self, i: int, j: int, G: float, softening: float | None = None) -> int:
@@ -401,14 +528,7 @@ class ModelBuilder:
         SceneTypeError, SceneError
             Arrays of the wrong shape or type, or values out of range.
         """
-        ij = _as_pairs("gravitational.particle_ids", indices)
-        n = ij.shape[0]
-        self._gravs["ij"].append(ij)
-        self._gravs["G"].append(_as_column("gravitational.G", G, n))
-        self._gravs["eps"].append(_as_column("gravitational.softening", np.nan if softening is None else softening, n))
-        start = self._n_gravs
-        self._n_gravs += n
-        return range(start, self._n_gravs)
+        return self.add_pairs("gravitational", indices, G=G, softening=softening)
 
     # -- generators -----------------------------------------------------------------
     def add_cloth_grid(self, nx: int, ny: int, *, origin=(0.0, 0.0, 0.0), spacing: float | None = None,
@@ -647,12 +767,11 @@ class ModelBuilder:
         SceneError
             Naming the first offending item, e.g. ``springs[3].stiffness: must be >= 0, got -1``.
         """
-        p, s, g = self._particles, self._springs, self._gravs
+        p = self._particles
         q = self._cat(p["q"], (3,))
         qd = self._cat(p["qd"], (3,))
         mass = self._cat(p["mass"])
         radius = self._cat(p["radius"])
-        drag = self._cat(p["drag"])
         fixed = self._cat(p["fixed"], dtype=bool)
         n = q.shape[0]
 
@@ -660,50 +779,43 @@ class ModelBuilder:
         _check_finite("particles", "vel", qd)
         _check_finite("particles", "mass", mass)
         _check_rule("particles", "mass", mass, mass > 0, "must be > 0")
-        _check_finite("particles", "drag", drag)
-        _check_rule("particles", "drag", drag, drag >= 0, "must be >= 0")
+        registered = data_terms()
+        terms: dict[str, dict] = {name: {} for name, _ in registered}
+        for name, cls in registered:  # the per-particle arrays of every term first: the particles' checks
+            for spec in cls.data:
+                if spec.per == "particle":
+                    a = spec.filled(n)
+                    for start, values in self._particle_data.get((name, spec.name), ()):
+                        a[start:start + values.shape[0]] = values
+                    spec.validate("particles", a)
+                    terms[name][spec.name] = a
         bad = np.flatnonzero(~np.isnan(radius) & ~(np.isfinite(radius) & (radius >= 0)))
         if bad.size:
             raise SceneError(f"particles[{bad[0]}].radius", f"must be finite and >= 0, got {radius[bad[0]]:g}")
         qd = np.where(fixed[:, None], 0.0, qd)
 
-        sij = self._cat(s["ij"], (2,), np.int64)
-        ke, kd, l0 = self._cat(s["ke"]), self._cat(s["kd"]), self._cat(s["l0"])
-        _check_pairs("springs", sij, n)
-        for name, v in (("stiffness", ke), ("damping", kd)):
-            _check_finite("springs", name, v)
-            _check_rule("springs", name, v, v >= 0, "must be >= 0")
-        given = ~np.isnan(l0)
-        _check_rule("springs", "rest_length", l0, ~given | (np.isfinite(l0) & (l0 >= 0)),
-                    "must be finite and >= 0")
-        if sij.shape[0]:
-            dist = np.linalg.norm(q[sij[:, 0]] - q[sij[:, 1]], axis=1)
-            l0 = np.where(given, l0, dist)
-
         eps = _scalar("pair_epsilon", self.pair_epsilon)
         if eps <= 0:
             raise SceneError("pair_epsilon", f"must be > 0, got {eps:g}")
-        gij = self._cat(g["ij"], (2,), np.int64)
-        G = self._cat(g["G"])
-        _check_pairs("gravitational", gij, n)
-        _check_finite("gravitational", "G", G)
-        _check_rule("gravitational", "G", G, G >= 0, "must be >= 0")
-        soft = self._cat(g["eps"])
-        given = ~np.isnan(soft)
-        _check_rule("gravitational", "softening", soft, ~given | (np.isfinite(soft) & (soft > 0)),
-                    "must be finite and > 0")
-        if gij.shape[0]:
-            c = G * mass[gij[:, 0]] * mass[gij[:, 1]]
-            # the default, at least pair_epsilon (a vanishing G or mass would give a vanishing length)
-            auto = np.maximum(default_softening(G, mass[gij[:, 0]], mass[gij[:, 1]]), eps)
-            soft = np.where(given, soft, auto)
-            with np.errstate(over="ignore", under="ignore", divide="ignore", invalid="ignore"):
-                cube = soft**3
-                core = c / cube
-            _check_rule("gravitational", "softening", soft, cube >= np.finfo(np.float64).tiny,
-                        "is too small: its cube underflows (must be >= 3e-103)")
-            _check_rule("gravitational", "softening", soft, np.isfinite(core),
-                        "is too small for the pair: G m_i m_j / softening^3 overflows")
+        for name, cls in registered:
+            group = term_group(name, cls)
+            d = terms[name]
+            chunks = self._pairs.get(name, {})
+            if any(spec.per == "pair" for spec in cls.data):
+                ij = self._cat(chunks.get("indices", []), (2,), np.int64)
+                _check_pairs(group, ij, n)
+                d["indices"] = ij
+            for spec in cls.data:
+                if spec.per == "pair":
+                    a = self._cat(chunks.get(spec.name, []), tuple(spec.shape))
+                    spec.validate(group, a)
+                    d[spec.name] = a
+                elif spec.per == "model":
+                    v = self._model_data.get(name, {}).get(spec.name)
+                    a = np.array(spec.filled(1)[0] if v is None else v, dtype=np.float64)
+                    spec.validate(group, a, per_item=False)
+                    d[spec.name] = a
+            terms[name] = cls.complete_data(d, particle_q=q, particle_mass=mass, pair_epsilon=eps)
 
         gravity = _scalar("solver.gravity", self.gravity)
         up = self.up_axis
@@ -715,11 +827,8 @@ class ModelBuilder:
             raise SceneError("up_axis", f"must be x, y, z or 0, 1, 2, got {up!r:.60}")
 
         return Model(
-            particle_q=q, particle_qd=qd, particle_mass=mass, particle_radius=radius,
-            particle_drag=drag, particle_fixed=fixed,
-            spring_indices=sij, spring_stiffness=ke, spring_damping=kd, spring_rest_length=l0,
-            gravitational_indices=gij, gravitational_G=G, gravitational_softening=soft,
-            gravity=gravity, up_axis=int(up), pair_epsilon=eps, cloth_grids=tuple(self._cloth_grids),
+            particle_q=q, particle_qd=qd, particle_mass=mass, particle_radius=radius, particle_fixed=fixed,
+            terms=terms, gravity=gravity, up_axis=int(up), pair_epsilon=eps, cloth_grids=tuple(self._cloth_grids),
             metadata=dict(self.metadata),
         )
 

@@ -380,7 +380,7 @@ class RunRecorder:
         k = int(np.argmax(rise))
         if not rise[k] > ENERGY_GROWTH * self.bound.scale:
             return
-        damped = bool(np.any(self.model.spring_damping > 0) or np.any(self.model.particle_drag > 0))
+        damped = self.model.dissipates()
         msg = (f"{self.integrator.name}: the energy rose from {energy[0]:.4g} J to {energy[k]:.4g} J (t={traj.t[k]:g} "
                f"s) in a scene whose forces {'dissipate' if damped else 'conserve'} it: an instability; try a "
                f"smaller time step{' or an implicit integrator' if not self.integrator.implicit else ''}")

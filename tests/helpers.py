@@ -14,7 +14,7 @@ from springsim import ModelBuilder
 from springsim.forces import eval_forces
 from springsim.reference import reference_trajectory
 
-__all__ = ["PENDULUM_YAML", "random_scene", "two_particle_scene", "damped_chain", "fd_jacobians", "rel_err", "observed_errors",
+__all__ = ["PENDULUM_YAML", "random_scene", "internal", "conservative", "two_particle_scene", "damped_chain", "fd_jacobians", "rel_err", "observed_errors",
            "run_cli", "one_line_error"]
 
 
@@ -29,11 +29,82 @@ springs:
 """
 
 
+def _spring_data(rng, b, pos, is_fixed, o):
+    """The built-in springs of :func:`random_scene` (``o``: its options)."""
+    n, springs, damping = pos.shape[0], o["springs"], o["damping"]
+    if springs:
+        ij = o["pairs"](springs)
+        kd = np.where(rng.random(springs) < 0.5, rng.uniform(0.1, 2.0, springs), 0.0) if damping else 0.0
+        d = np.linalg.norm(pos[ij[:, 0]] - pos[ij[:, 1]], axis=1)
+        l0 = np.where(rng.random(springs) < 0.5, np.nan, d * rng.uniform(0.5, 1.5, springs))
+        b.add_springs(ij, rng.uniform(*o["ke"], springs), kd, l0)
+        if o["duplicate"]:
+            b.add_springs(ij[:1], rng.uniform(*o["ke"]), kd if np.ndim(kd) == 0 else kd[:1])
+
+
+def _gravitational_data(rng, b, pos, is_fixed, o):
+    if o["gravitational"]:
+        b.add_gravitationals(o["pairs"](o["gravitational"]), rng.uniform(*o["G"], o["gravitational"]))
+
+
+def _fixed_pairs(b, f, o):
+    """The built-in pairs between two fixed particles ``f``."""
+    if "spring" in o["terms"]:
+        b.add_spring(int(f[0]), int(f[1]), ke=50.0, kd=0.5 if o["damping"] else 0.0)
+    if "gravitational" in o["terms"]:
+        b.add_gravitational(int(f[0]), int(f[1]), G=1.0)
+
+
+def _drag_data(rng, n, o):
+    return {"drag": np.where(rng.random(n) < 0.5, rng.uniform(0.1, 1.0, n), 0.0)} if o["drag"] else {}
+
+
+#: Generators of the built-in terms' random data (their tuned distributions): per-particle arrays, drawn with the
+#: particles, and pairs; :func:`random_scene` draws the data of every other registered term from its declarations
+#: (:func:`_declared_data`).
+RANDOM_PARTICLES = {"drag": _drag_data}
+RANDOM_PAIRS = {"spring": _spring_data, "gravitational": _gravitational_data}
+
+
+def _declared_values(rng, spec, count):
+    """``count`` random values of ``spec`` in its sample range (NaN, the computed value, for about half where
+    the spec is computed)."""
+    lo, hi = spec.sample_range()
+    v = rng.uniform(lo, hi, (count,) + tuple(spec.shape))
+    if spec.computed:
+        v[rng.random(count) < 0.5] = np.nan
+    return v
+
+
+def _declared_data(rng, b, name, cls, n, is_fixed, o, particle_arrays):
+    """Random data of a term from its declared :class:`~springsim.forces.ArraySpec` s: 3 pairs (and one between two
+    fixed particles), values for about half the particles, per-model values."""
+    specs = cls.data
+    if any(s.per == "pair" for s in specs):
+        k = 3
+        ij = o["pairs"](k)
+        if o["fixed_pairs"] and o["fixed"] >= 2:
+            ij = np.concatenate([ij, np.flatnonzero(is_fixed)[None, :2]])
+        b.add_pairs(name, ij, **{s.name: _declared_values(rng, s, ij.shape[0]) for s in specs if s.per == "pair"})
+    for s in specs:
+        if s.per == "particle":
+            v = _declared_values(rng, s, n)
+            particle_arrays[s.name] = np.where((rng.random(n) < 0.5).reshape((n,) + (1,) * len(s.shape)), v,
+                                               s.default)
+        elif s.per == "model":
+            b.set_term_data(name, **{s.name: _declared_values(rng, s, 1)[0]})
+
+
 def random_scene(rng, n: int = 8, *, springs: int = 12, damping: bool = True, gravitational: int = 3,
                  drag: bool = True, fixed: int = 2, gravity: float = -9.81, ke=(20.0, 200.0),
                  fixed_pairs: bool = True, duplicate: bool = True, pair_epsilon: float = 1e-9,
-                 G=(0.5, 2.0), speed: float = 1.0):
-    """A small random scene exercising every force term.
+                 G=(0.5, 2.0), speed: float = 1.0, select=None):
+    """A small random scene exercising every registered force term (:data:`springsim.forces.FORCE_TERMS`).
+
+    The built-in terms have tuned distributions (below); any other term gets random data from its declared
+    arrays (3 random pairs and one between fixed particles, values for about half the particles, per-model
+    values in each spec's sample range), drawn after the built-in ones, so the built-in terms' data of a seed
+    stay the same when terms are registered.
 
     Parameters
     ----------
@@ -57,43 +128,60 @@ def random_scene(rng, n: int = 8, *, springs: int = 12, damping: bool = True, gr
         Stiffness range [N/m].
     speed : float
         Initial velocities are uniform in [-speed, speed] [m/s].
+    select : callable, optional
+        A predicate on force-term classes: only the terms it accepts get data (gravity is 0 without
+        ``ForceGravity``). Tests pick terms by their declared properties, e.g. ``select=internal`` (no external
+        forces) or ``select=conservative``.
 
     Returns
     -------
     Model
     """
-    b = ModelBuilder(gravity=gravity, pair_epsilon=pair_epsilon)
+    from springsim.forces import FORCE_TERMS
+
+    terms = {name: cls for name, cls in FORCE_TERMS.items() if select is None or select(cls)}
+    b = ModelBuilder(gravity=gravity if "gravity" in terms else 0.0, pair_epsilon=pair_epsilon)
     # a jittered lattice keeps every pair well separated (no accidental near-degenerate pairs)
     side = int(np.ceil(n ** (1 / 3)))
     grid = np.stack(np.meshgrid(*[np.arange(side)] * 3, indexing="ij"), -1).reshape(-1, 3)[:n]
     pos = 0.7 * grid + rng.uniform(-0.15, 0.15, (n, 3))
     vel = rng.uniform(-speed, speed, (n, 3))
     mass = rng.uniform(0.5, 2.0, n)
-    beta = np.where(rng.random(n) < 0.5, rng.uniform(0.1, 1.0, n), 0.0) if drag else 0.0
+    o = dict(springs=springs, damping=damping, gravitational=gravitational, ke=ke, G=G, duplicate=duplicate,
+             drag=drag, terms=terms, fixed=fixed, fixed_pairs=fixed_pairs)
+    arrays = {}
+    for name, make in RANDOM_PARTICLES.items():
+        if name in terms:
+            arrays.update(make(rng, n, o))
     is_fixed = np.zeros(n, dtype=bool)
     is_fixed[rng.choice(n, size=fixed, replace=False)] = True
-    b.add_particles(pos, vel, mass, drag=beta, fixed=is_fixed)
 
     def pairs(k):
         i = rng.integers(0, n, k)
         j = (i + rng.integers(1, n, k)) % n
         return np.stack([i, j], 1)
 
-    if springs:
-        ij = pairs(springs)
-        kd = np.where(rng.random(springs) < 0.5, rng.uniform(0.1, 2.0, springs), 0.0) if damping else 0.0
-        d = np.linalg.norm(pos[ij[:, 0]] - pos[ij[:, 1]], axis=1)
-        l0 = np.where(rng.random(springs) < 0.5, np.nan, d * rng.uniform(0.5, 1.5, springs))
-        b.add_springs(ij, rng.uniform(*ke, springs), kd, l0)
-        if duplicate:
-            b.add_springs(ij[:1], rng.uniform(*ke), kd if np.ndim(kd) == 0 else kd[:1])
-    if gravitational:
-        b.add_gravitationals(pairs(gravitational), rng.uniform(*G, gravitational))
+    o["pairs"] = pairs
+    for name, make in RANDOM_PAIRS.items():
+        if name in terms:
+            make(rng, b, pos, is_fixed, o)
     if fixed_pairs and fixed >= 2:
-        f = np.flatnonzero(is_fixed)[:2]
-        b.add_spring(int(f[0]), int(f[1]), ke=50.0, kd=0.5 if damping else 0.0)
-        b.add_gravitational(int(f[0]), int(f[1]), G=1.0)
+        _fixed_pairs(b, np.flatnonzero(is_fixed)[:2], o)
+    for name, cls in terms.items():
+        if cls.data and name not in RANDOM_PAIRS and name not in RANDOM_PARTICLES:
+            _declared_data(rng, b, name, cls, n, is_fixed, o, arrays)
+    b.add_particles(pos, vel, mass, fixed=is_fixed, **arrays)
     return b.finalize()
+
+
+def internal(cls) -> bool:
+    """``random_scene(select=internal)``: only the terms whose forces are internal (no gravity, drag, ...)."""
+    return not cls.external
+
+
+def conservative(cls) -> bool:
+    """``random_scene(select=conservative)``: only the terms with a potential (springs without ``damping``)."""
+    return cls.conservative
 
 
 def two_particle_scene(*, ke=0.0, kd=0.0, G=0.0, drag=0.0, gravity=0.0, rest_length=0.7,

@@ -12,23 +12,27 @@ when the first is fixed; pairs between two fixed particles are dropped (they nev
 rank's **local particles** are, in this order: its owned free particles, the **ghosts** (free particles of
 other ranks that its pairs touch) and the fixed particles its pairs touch. Two local models describe them:
 
-* the **pair model**: every local particle, the owned pairs (re-indexed), no gravity and no drag. The
-  pairwise force terms (:attr:`springsim.forces.ForceTerm.pairwise`) are built from it; their forces and
-  Jacobian blocks on ghost rows belong to the ghosts' owners and are sent there (forces by a reverse
-  scatter that adds, blocks as off-process COO entries).
+* the **pair model**: every local particle, the owned pairs (re-indexed), no gravity and none of the data of
+  the per-particle terms (drag, ...: their declared defaults). The pairwise force terms
+  (:attr:`springsim.forces.ForceTerm.pairwise`) are built from it; their forces and Jacobian blocks on
+  ghost rows belong to the ghosts' owners and are sent there (forces by a reverse scatter that adds, blocks
+  as off-process COO entries).
 * the **particle model**: the owned particles only, no pairs. The per-particle terms (gravity, drag, ...)
   are built from it, so each particle's own force is evaluated once, by its owner. Owned particles come
   first in the local order, so its indices are local indices too.
 
+Both are built from the terms' declared data (:attr:`springsim.forces.ForceTerm.data`): per-particle arrays
+are sliced by particle, per-pair arrays by pair, per-model arrays kept, so a new term reaches every rank.
 Everything here is plain numpy, so the partition can be built and checked without MPI.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import numpy as np
 
+from ..forces._data import data_terms
 from ..model import Model
 
 __all__ = ["PARTITIONERS", "contiguous_offsets", "pair_families", "system_order", "LocalPart", "partition"]
@@ -50,15 +54,17 @@ def contiguous_offsets(count: int, size: int) -> np.ndarray:
 
 
 def pair_families(model: Model) -> dict[str, list[str]]:
-    """The model's pair lists: ``{prefix: [field, ...]}`` for every ``<prefix>_indices`` field of shape (P, 2),
-    the fields being those named ``<prefix>_*`` (indices first). For the current model: ``spring`` and
-    ``gravitational``."""
-    names = [f.name for f in fields(model)]
+    """The model's pair lists: ``{term: [array, ...]}`` for every term with a pair list in
+    :attr:`~springsim.model.Model.terms`, its per-pair arrays in declared order after ``"indices"``. With the
+    built-in terms: ``spring`` and ``gravitational``."""
+    specs = dict(data_terms())
     out = {}
-    for name in names:
-        if name.endswith("_indices"):
-            prefix = name[: -len("_indices")]
-            out[prefix] = [name] + [n for n in names if n.startswith(prefix + "_") and n != name]
+    for term, data in model.terms.items():
+        if "indices" in data:
+            cls = specs.get(term)
+            per_pair = [s.name for s in cls.data if s.per == "pair"] if cls is not None else [
+                k for k, v in data.items() if k != "indices" and v.shape[:1] == data["indices"].shape[:1]]
+            out[term] = ["indices"] + per_pair
     return out
 
 
@@ -111,22 +117,32 @@ class LocalPart:
 
 def _sub_model(model: Model, particles: np.ndarray, pairs: dict, *, keep_particle_terms: bool) -> Model:
     """The model restricted to ``particles`` (global ids, in local order) with the pairs ``pairs``
-    ({family: global pair indices}), re-indexed; gravity and drag only with ``keep_particle_terms``."""
+    ({term: global pair indices}, the others dropped), re-indexed, from the terms' declared data: per-particle
+    arrays sliced by particle, per-pair arrays by pair, per-model arrays kept. Gravity and the data of the
+    per-particle terms (those not :attr:`~springsim.forces.ForceTerm.pairwise`) only with
+    ``keep_particle_terms`` (else their defaults: the terms are then absent)."""
     local = np.full(model.particle_count, -1, dtype=np.int64)
     local[particles] = np.arange(particles.size)
-    kw = {}
-    for f in fields(model):
-        v = getattr(model, f.name)
-        if f.name.startswith("particle_"):
-            kw[f.name] = np.array(v[particles])
-    if not keep_particle_terms:
-        kw["particle_drag"] = np.zeros(particles.size)
-    for prefix, names in pair_families(model).items():
-        sel = pairs.get(prefix, np.zeros(0, dtype=np.int64))
-        for name in names:
-            a = getattr(model, name)[sel]
-            kw[name] = local[a] if name == names[0] else np.array(a)
-    return Model(**kw, gravity=model.gravity if keep_particle_terms else 0.0, up_axis=model.up_axis,
+    kw = {name: np.array(getattr(model, name)[particles])
+          for name in ("particle_q", "particle_qd", "particle_mass", "particle_radius", "particle_fixed")}
+    registered = dict(data_terms())
+    terms = {}
+    for term, data in model.terms.items():
+        cls = registered.get(term)
+        if cls is None:
+            continue  # no longer registered: no term would use it
+        if not (keep_particle_terms or cls.pairwise):
+            continue  # its declared defaults
+        d = {}
+        if "indices" in data:
+            sel = pairs.get(term, np.zeros(0, dtype=np.int64))
+            d["indices"] = local[data["indices"][sel]]
+        for spec in cls.data:
+            a = data[spec.name]
+            d[spec.name] = (np.array(a[particles]) if spec.per == "particle" else
+                            np.array(a[sel]) if spec.per == "pair" else np.array(a))
+        terms[term] = d
+    return Model(**kw, terms=terms, gravity=model.gravity if keep_particle_terms else 0.0, up_axis=model.up_axis,
                  pair_epsilon=model.pair_epsilon, metadata=dict(model.metadata))
 
 
@@ -163,8 +179,8 @@ def partition(model: Model, size: int, rank: int, offsets: np.ndarray | None = N
     owned = free[lo:hi]
 
     owned_pairs, touched = {}, [np.zeros(0, dtype=np.int64)]
-    for prefix, names in pair_families(model).items():
-        ij = getattr(model, names[0])
+    for prefix in pair_families(model):
+        ij = model.terms[prefix]["indices"]
         first = np.where(owner[ij[:, 0]] >= 0, owner[ij[:, 0]], owner[ij[:, 1]]) if ij.size else np.zeros(0, int)
         sel = np.flatnonzero(first == rank)
         owned_pairs[prefix] = sel

@@ -64,8 +64,8 @@ def owned_row_pattern(model, lo: int, hi: int, order: np.ndarray | None = None) 
     fi = np.full(model.particle_count, -1, dtype=np.int64)
     fi[free] = np.arange(F)
     r, c = [np.arange(lo, hi)], [np.arange(lo, hi)]
-    for names in pair_families(model).values():
-        ij = fi[getattr(model, names[0])]
+    for term in pair_families(model):
+        ij = fi[model.terms[term]["indices"]]
         ij = ij[(ij[:, 0] >= 0) & (ij[:, 1] >= 0)]
         for a, b in ((0, 1), (1, 0)):
             mine = (ij[:, a] >= lo) & (ij[:, a] < hi)

@@ -1,16 +1,20 @@
-"""Force terms. Adding one is a new module plus one line in :data:`FORCE_TERMS`."""
+"""Force terms. Adding one is a new module plus one line in :data:`FORCE_TERMS`: the term declares its data
+(:attr:`ForceTerm.data`, :class:`ArraySpec`), and the model, the builder, the YAML loader, the partitioner, the
+fingerprint and the naive reference take it from the registry (CONTRIBUTING.md, "Adding a force term")."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from ._base import JACOBIAN_MODES, PROJECTED_MODES, BlockLayout, Blocks, ForceTerm
+from ._data import ArraySpec, data_terms
 from .drag import ForceDrag
 from .gravitational import ForceGravitational
 from .gravity import ForceGravity
 from .spring import ForceSpring
 
-__all__ = ["FORCE_TERMS", "JACOBIAN_MODES", "PROJECTED_MODES", "BlockLayout", "Blocks", "ForceTerm", "ForceDrag",
+__all__ = ["FORCE_TERMS", "JACOBIAN_MODES", "PROJECTED_MODES", "ArraySpec", "BlockLayout", "Blocks", "ForceTerm",
+           "ForceDrag", "data_terms",
            "ForceGravitational", "ForceGravity", "ForceSpring", "make_force_terms", "eval_forces",
            "eval_forces_discrete", "dense_jacobians"]
 

@@ -17,6 +17,8 @@ from typing import ClassVar
 
 import numpy as np
 
+from ._data import ArraySpec
+
 __all__ = ["BlockLayout", "Blocks", "ForceTerm", "JACOBIAN_MODES", "PROJECTED_MODES", "PairIncidence"]
 
 #: Jacobian variants (see README, "Jacobian modes").
@@ -161,6 +163,21 @@ class ForceTerm(ABC):
     #: positions: springs).
     curved: ClassVar[bool] = False
 
+    #: Whether the term's forces are external: they change the total momentum (gravity, drag). Internal terms
+    #: act between pairs of particles with equal and opposite forces along their difference (springs,
+    #: gravitational pairs) and conserve linear and angular momentum. Tests that need a closed system select the
+    #: terms by it.
+    external: ClassVar[bool] = False
+
+    #: The term's data (:class:`~springsim.forces.ArraySpec` s): per-particle, per-pair or per-model arrays that
+    #: the model holds for it (:attr:`springsim.model.Model.terms`), and the builder, the YAML loader, the
+    #: partitioner and the fingerprint handle from these declarations. A term with per-pair arrays has a pair
+    #: list, ``model.<name>_indices``.
+    data: ClassVar[tuple[ArraySpec, ...]] = ()
+    #: The YAML key of the term's pair list (or of its per-model mapping), and the item path of its error
+    #: messages (``springs[3].stiffness``); default :attr:`name`.
+    yaml_key: ClassVar[str | None] = None
+
     #: Layouts of dF/dq and dF/dqd, or None where the term does not depend on q / qd.
     layout_q: BlockLayout | None = None
     layout_qd: BlockLayout | None = None
@@ -188,6 +205,57 @@ class ForceTerm(ABC):
         -------
         ForceTerm or None
         """
+
+    @classmethod
+    def complete_data(cls, data: dict, *, particle_q: np.ndarray, particle_mass: np.ndarray,
+                      pair_epsilon: float) -> dict:
+        """The term's data with its computed values filled in (the ``computed`` arrays' NaN) and the rules
+        that involve several arrays checked, when a model is built (:meth:`springsim.ModelBuilder.finalize`).
+        The default returns ``data`` unchanged.
+
+        Parameters
+        ----------
+        data : dict
+            Array name -> array (``"indices"`` for the pair list), each value already checked against its
+            :class:`~springsim.forces.ArraySpec`.
+        particle_q : ndarray, shape (N, 3)
+            Initial positions [m].
+        particle_mass : ndarray, shape (N,)
+            Masses [kg].
+        pair_epsilon : float
+            The model's :attr:`~springsim.model.Model.pair_epsilon` [m].
+
+        Returns
+        -------
+        dict
+            The completed data.
+
+        Raises
+        ------
+        SceneError
+            A rule broken, naming the item (``gravitational[2].softening: ...``).
+        """
+        return data
+
+    @classmethod
+    def naive_force(cls, model, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+        """The term's force (N, 3) [N] on every particle of ``model`` (fixed ones included), written straight
+        from the model's arrays with plain gathers and ``np.add.at`` scatters, sharing no code with
+        :meth:`eval_force`: the independent reference of :func:`springsim.forces.naive.naive_forces`.
+
+        Parameters
+        ----------
+        model : Model
+            The model.
+        q, qd : ndarray, shape (N, 3)
+            Positions [m] and velocities [m/s].
+
+        Returns
+        -------
+        ndarray, shape (N, 3)
+            The term's force [N] (zero where the model has nothing of it).
+        """
+        raise NotImplementedError(f"force term {cls.__name__} has no naive_force (the reference of its eval_force)")
 
     @abstractmethod
     def eval_force(self, q: np.ndarray, qd: np.ndarray, f_out: np.ndarray, *,

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._base import BlockLayout, Blocks, ForceTerm
+from ._data import ArraySpec
 
 __all__ = ["ForceDrag"]
 
@@ -22,6 +23,9 @@ class ForceDrag(ForceTerm):
 
     name = "drag"
     dissipative = True
+    external = True
+    data = (ArraySpec("drag", per="particle", unit="N s/m", lo=0.0, sample=(0.1, 1.0), dissipative=True,
+                      doc="linear drag coefficient beta of F = -beta qd"),)
 
     def __init__(self, index, beta):
         self.index = np.asarray(index, dtype=np.int64)
@@ -38,6 +42,10 @@ class ForceDrag(ForceTerm):
         if index.size == 0:
             return None
         return cls(index, model.particle_drag[index])
+
+    @classmethod
+    def naive_force(cls, model, q, qd):
+        return -model.particle_drag[:, None] * qd
 
     def eval_force(self, q, qd, f_out, *, damping_geometry=None):
         f_out[self.index] -= self.beta[:, None] * qd[self.index]

@@ -36,6 +36,7 @@ import numpy as np
 
 from ._base import (PROJECTED_MODES, BlockLayout, Blocks, ForceTerm, PairIncidence, active_pairs, outer,
                     pair_geometry, scratch, step_pairs)
+from ._data import ArraySpec
 
 __all__ = ["ForceGravitational"]
 
@@ -57,6 +58,13 @@ class ForceGravitational(ForceTerm):
     name = "gravitational"
     pairwise = True
     conservative = True
+    yaml_key = "gravitational"
+    data = (
+        ArraySpec("G", per="pair", unit="N m^2/kg^2", lo=0.0, required=True, sample=(0.5, 2.0),
+                  doc="gravitational constant of the pair"),
+        ArraySpec("softening", per="pair", unit="m", lo=0.0, lo_strict=True, computed=True,
+                  doc="softening length; computed: springsim.builder.default_softening of the pair"),
+    )
 
     def __init__(self, pairs, c, eps):
         self.pairs = np.asarray(pairs, dtype=np.int64)
@@ -75,6 +83,40 @@ class ForceGravitational(ForceTerm):
         m = model.particle_mass
         return cls(pairs, model.gravitational_G[keep] * m[pairs[:, 0]] * m[pairs[:, 1]],
                    model.gravitational_softening[keep])
+
+    @classmethod
+    def complete_data(cls, data, *, particle_q, particle_mass, pair_epsilon):
+        from ..builder import _check_rule, default_softening
+
+        gij, G, soft = data["indices"], data["G"], data["softening"]
+        if not gij.shape[0]:
+            return data
+        mass = particle_mass
+        c = G * mass[gij[:, 0]] * mass[gij[:, 1]]
+        # the default, at least pair_epsilon (a vanishing G or mass would give a vanishing length)
+        auto = np.maximum(default_softening(G, mass[gij[:, 0]], mass[gij[:, 1]]), pair_epsilon)
+        soft = np.where(np.isnan(soft), auto, soft)
+        with np.errstate(over="ignore", under="ignore", divide="ignore", invalid="ignore"):
+            cube = soft**3
+            core = c / cube
+        _check_rule("gravitational", "softening", soft, cube >= np.finfo(np.float64).tiny,
+                    "is too small: its cube underflows (must be >= 3e-103)")
+        _check_rule("gravitational", "softening", soft, np.isfinite(core),
+                    "is too small for the pair: G m_i m_j / softening^3 overflows")
+        return dict(data, softening=soft)
+
+    @classmethod
+    def naive_force(cls, model, q, qd):
+        f = np.zeros_like(q)
+        pairs = model.gravitational_indices
+        if len(pairs):
+            d = q[pairs[:, 0]] - q[pairs[:, 1]]
+            ls = np.maximum(np.linalg.norm(d, axis=1), model.gravitational_softening)
+            m = model.particle_mass
+            fg = -(model.gravitational_G * m[pairs[:, 0]] * m[pairs[:, 1]] / ls**3)[:, None] * d
+            np.add.at(f, pairs[:, 0], fg)
+            np.add.at(f, pairs[:, 1], -fg)
+        return f
 
     def eval_force(self, q, qd, f_out, *, damping_geometry=None):
         d = self.incidence.diff(q)

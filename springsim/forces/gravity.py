@@ -22,6 +22,7 @@ class ForceGravity(ForceTerm):
 
     name = "gravity"
     conservative = True
+    external = True
 
     def __init__(self, mass, g):
         self.mass = np.asarray(mass, dtype=np.float64)
@@ -34,6 +35,10 @@ class ForceGravity(ForceTerm):
         if model.gravity == 0.0 or model.particle_count == 0:
             return None
         return cls(model.particle_mass, model.gravity_vector)
+
+    @classmethod
+    def naive_force(cls, model, q, qd):
+        return model.particle_mass[:, None] * model.gravity_vector[None, :]
 
     def eval_force(self, q, qd, f_out, *, damping_geometry=None):
         f_out += self._force

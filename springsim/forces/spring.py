@@ -63,6 +63,7 @@ import numpy as np
 from .._accel import resolve
 from ._base import (PROJECTED_MODES, BlockLayout, Blocks, ForceTerm, PairIncidence, active_pairs, outer,
                     pair_geometry, scratch, step_pairs)
+from ._data import ArraySpec
 
 __all__ = ["ForceSpring"]
 
@@ -88,6 +89,15 @@ class ForceSpring(ForceTerm):
     conservative = True  # the elastic part
     curved = True  # spring lengths: the second-order correction of minimisation stages
     dissipative = True   # the damping, where a spring has it (declared per family, used per instance)
+    yaml_key = "springs"
+    data = (
+        ArraySpec("stiffness", per="pair", unit="N/m", lo=0.0, required=True, aliases=("ke",), sample=(20.0, 200.0),
+                  doc="stiffness ke"),
+        ArraySpec("damping", per="pair", unit="N s/m", lo=0.0, aliases=("kd",), sample=(0.1, 2.0), dissipative=True,
+                  doc="damping kd of the force along the spring (PA2 eq. 8)"),
+        ArraySpec("rest_length", per="pair", unit="m", lo=0.0, computed=True,
+                  doc="rest length l0; computed: the initial distance"),
+    )
     #: Accepted values of ``kernels``.
     KERNELS = ("auto", "numba", "numpy")
     #: ``kernels="auto"`` compiles the force pass from this many springs on.
@@ -127,6 +137,30 @@ class ForceSpring(ForceTerm):
             return None
         return cls(model.spring_indices[keep], model.spring_stiffness[keep], model.spring_damping[keep],
                    model.spring_rest_length[keep], model.pair_epsilon, kernels=kernels)
+
+    @classmethod
+    def complete_data(cls, data, *, particle_q, particle_mass, pair_epsilon):
+        ij, l0 = data["indices"], data["rest_length"]
+        if ij.shape[0]:
+            dist = np.linalg.norm(particle_q[ij[:, 0]] - particle_q[ij[:, 1]], axis=1)
+            data = dict(data, rest_length=np.where(np.isnan(l0), dist, l0))
+        return data
+
+    @classmethod
+    def naive_force(cls, model, q, qd):
+        f = np.zeros_like(q)
+        pairs, eps = model.spring_indices, model.pair_epsilon
+        if len(pairs):
+            d = q[pairs[:, 0]] - q[pairs[:, 1]]
+            l = np.linalg.norm(d, axis=1)
+            safe = np.maximum(l, eps)
+            fs = -(model.spring_stiffness * (1.0 - model.spring_rest_length / safe))[:, None] * d
+            n = np.where((l >= eps)[:, None], d / safe[:, None], 0.0)
+            v = qd[pairs[:, 0]] - qd[pairs[:, 1]]
+            fs -= (model.spring_damping * np.sum(n * v, axis=1))[:, None] * n
+            np.add.at(f, pairs[:, 0], fs)
+            np.add.at(f, pairs[:, 1], -fs)
+        return f
 
     def jacobian_symmetric(self, mode: str, *, frozen_damping: bool = False) -> bool:
         # the damping force's position derivative (dF/dq of eq. 8) is not symmetric; the other modes drop it, and

@@ -14,6 +14,11 @@ The format is documented key by key in ``docs/scene-format.md``. In short::
     pin: [0, {box: [[-1, -1, 0.9], [1, 1, 1.1]]}]   # fix further particles (global indices, boxes)
     plot: {particle_id: 1, dof: 2, y_range: [-1, 1]}
 
+The keys of the force terms' data come from their declarations (:attr:`springsim.forces.ForceTerm.data`):
+a pair term's list is the top-level key :attr:`~springsim.forces.ForceTerm.yaml_key` (``springs``,
+``gravitational``) with ``particle_ids`` and the term's per-pair keys in each item; per-particle arrays are
+keys of the ``particles`` items (``drag``); per-model arrays are keys of a mapping under the term's YAML key.
+
 Every problem raises :class:`~springsim.errors.SceneError` whose message is one
 line naming the field path (``particles[3]: unknown key 'colour'``). Items are
 type-checked one by one (the YAML is a list of dicts, so that is linear in the
@@ -39,6 +44,7 @@ import yaml
 
 from ..builder import COEFFICIENT_ALIASES, ModelBuilder
 from ..errors import SceneError
+from ..forces._data import data_terms, term_group
 from ..options import SolverConfig
 from ..model import AXES, Model
 from ..topology import pin_mask
@@ -69,15 +75,10 @@ MAX_NESTING = 64
 ALIAS_EXPANSION = 4
 MIN_EXPANDED_NODES = 1_000_000
 
-_TOP_KEYS = ("solver", "particles", "springs", "gravitational", "plot", "cloth", "benchmark_cloth", "pin",
-             "name", "description")
-_PARTICLE_KEYS = ("pos", "vel", "mass", "fixed", "radius", "drag")
-_SPRING_KEYS = ("particle_ids", "stiffness", "damping", "rest_length")
-#: Accepted aliases of spring keys (canonical: the assignment's ``stiffness`` and ``damping``).
-_SPRING_ALIASES = {a: c for a, c in COEFFICIENT_ALIASES.items() if c in _SPRING_KEYS}
-_GRAV_KEYS = ("particle_ids", "G", "softening")
-#: Keys whose absence (or null) means a computed default; the builder marks that default with NaN.
-_DEFAULT_WHEN_NULL = ("rest_length", "softening")
+#: Top-level keys; the force terms' keys (:func:`_term_keys`) go after ``particles``.
+_TOP_KEYS = ("solver", "particles", "plot", "cloth", "benchmark_cloth", "pin", "name", "description")
+#: Keys of a particle item; the per-particle arrays of the force terms follow.
+_PARTICLE_KEYS = ("pos", "vel", "mass", "fixed", "radius")
 _PLOT_KEYS = ("particle_id", "dof", "y_range")
 _CLOTH_KEYS = tuple(p for p in inspect.signature(ModelBuilder.add_cloth_grid).parameters if p != "self")
 _BENCH_KEYS = ("n",) + tuple(p for p in inspect.signature(benchmark_cloth_grid).parameters if p != "n")
@@ -284,14 +285,53 @@ def _parse_solver(doc: dict, default_dt: float | None) -> tuple[SolverConfig, fl
     return cfg, gravity, up
 
 
+def _term_keys() -> list[tuple[str, type, str]]:
+    """``(term, class, YAML key)`` of every registered term with a pair list or per-model data, in registry order.
+
+    Raises ValueError when a term's YAML key is taken (by the format or another term): a registration error."""
+    out = [(name, cls, term_group(name, cls)) for name, cls in data_terms()
+           if any(spec.per != "particle" for spec in cls.data)]
+    _distinct("top-level", _TOP_KEYS + tuple(key for _, _, key in out))
+    return out
+
+
+def _particle_specs() -> list:
+    """The per-particle :class:`~springsim.forces.ArraySpec` s of the registered terms, in registry order."""
+    specs = [spec for _, cls in data_terms() for spec in cls.data if spec.per == "particle"]
+    _distinct("particle", _PARTICLE_KEYS + tuple(spec.key for spec in specs))
+    return specs
+
+
+def _distinct(what: str, keys: tuple) -> None:
+    seen = set()
+    for k in keys:
+        if k in seen:
+            raise ValueError(f"two force terms (or a force term and the scene format) declare the {what} YAML "
+                             f"key {k!r}")
+        seen.add(k)
+
+
+def _term_value(path: str, spec, v):
+    """A YAML value of ``spec``: a number (or a list of numbers for a vector array), checked for type only."""
+    if spec.shape:
+        return _vector(path, v, int(np.prod(spec.shape)))
+    if not _is_num(v):
+        _number(path, v)
+    return v
+
+
 def _parse_particles(items: list) -> dict[str, np.ndarray]:
     n = len(items)
     pos, vel, mass = [None] * n, [None] * n, [None] * n
-    fixed, radius, drag = [False] * n, [math.nan] * n, [0.0] * n
-    allowed, required = set(_PARTICLE_KEYS), ("pos", "mass")
+    fixed, radius = [False] * n, [math.nan] * n
+    specs = _particle_specs()
+    keys = _PARTICLE_KEYS + tuple(spec.key for spec in specs)
+    cols = {spec.name: [spec.default] * n if not spec.shape else [[spec.default] * int(np.prod(spec.shape))] * n
+            for spec in specs}
+    allowed, required = set(keys), ("pos", "mass")
     for k, p in enumerate(items):
         if type(p) is not dict or not allowed.issuperset(p) or "pos" not in p or "mass" not in p:
-            _mapping(f"particles[{k}]", p, _PARTICLE_KEYS, required)
+            _mapping(f"particles[{k}]", p, keys, required)
         pos[k] = _vector_fast(f"particles[{k}].pos", p["pos"])
         v = p.get("vel")
         vel[k] = (0.0, 0.0, 0.0) if v is None else _vector_fast(f"particles[{k}].vel", v)
@@ -307,14 +347,16 @@ def _parse_particles(items: list) -> dict[str, np.ndarray]:
         r = p.get("radius")
         if r is not None:
             radius[k] = _number(f"particles[{k}].radius", r, lo=0.0)
-        d = p.get("drag")
-        if d is not None:
-            if not _is_num(d):
-                _number(f"particles[{k}].drag", d)
-            drag[k] = d
-    return {"pos": np.array(pos, dtype=np.float64).reshape(n, 3), "vel": np.array(vel, dtype=np.float64).reshape(n, 3),
-            "mass": np.array(mass, dtype=np.float64), "fixed": np.array(fixed, dtype=bool),
-            "radius": np.array(radius, dtype=np.float64), "drag": np.array(drag, dtype=np.float64)}
+        for spec in specs:
+            x = p.get(spec.key)
+            if x is not None:
+                cols[spec.name][k] = _term_value(f"particles[{k}].{spec.key}", spec, x)
+    out = {"pos": np.array(pos, dtype=np.float64).reshape(n, 3), "vel": np.array(vel, dtype=np.float64).reshape(n, 3),
+           "mass": np.array(mass, dtype=np.float64), "fixed": np.array(fixed, dtype=bool),
+           "radius": np.array(radius, dtype=np.float64)}
+    out["arrays"] = {spec.name: np.array(cols[spec.name], dtype=np.float64).reshape((n,) + tuple(spec.shape))
+                     for spec in specs}
+    return out
 
 
 def _vector_fast(path: str, v) -> list:
@@ -338,20 +380,24 @@ def _ids(path: str, v, n: int) -> list:
     raise SceneError(path, f"particle id out of range [0, {n}), got {_show(v)}")
 
 
-def _parse_pairs(group: str, items: list, n: int, keys: tuple[str, ...], value_keys: dict,
-                 aliases: dict | None = None) -> dict:
-    """Check pair items; ``value_keys`` maps key -> (required, default) of the number fields.
+def _parse_pairs(group: str, items: list, n: int, specs) -> dict:
+    """Check the items of a pair term's list, whose per-pair arrays are ``specs``
+    (:class:`~springsim.forces.ArraySpec`).
 
-    ``aliases`` maps alias -> canonical key; ``out["aliases"]`` maps the index of every item that used
-    one to {canonical: alias}, so that later errors can name the key as written.
+    Spec aliases are accepted for their canonical keys; ``out["aliases"]`` maps the index of every item that
+    used one to {canonical: alias}, so that later errors can name the key as written. A computed array's value
+    may be left out or null (its default); ``out[name]`` are the columns by array name, ``out["ids"]`` the pairs.
     """
     m = len(items)
-    aliases = aliases or {}
+    keys = ("particle_ids",) + tuple(spec.key for spec in specs)
+    aliases = {a: spec.key for spec in specs for a in spec.aliases}
     allowed = set(keys) | set(aliases)
     alias_keys = frozenset(aliases)
-    required = ("particle_ids",) + tuple(k for k, (req, _) in value_keys.items() if req)
+    required = ("particle_ids",) + tuple(spec.key for spec in specs if spec.required)
     ids = [None] * m
-    cols = {k: [default] * m for k, (_, default) in value_keys.items()}
+    cols = {spec.key: [spec.default] * m if not spec.shape else [[spec.default] * int(np.prod(spec.shape))] * m
+            for spec in specs}
+    by_key = {spec.key: spec for spec in specs}
     spelled: dict[int, dict] = {}
     for k, s in enumerate(items):
         if alias_keys and type(s) is dict and not alias_keys.isdisjoint(s):
@@ -362,19 +408,26 @@ def _parse_pairs(group: str, items: list, n: int, keys: tuple[str, ...], value_k
         for key, col in cols.items():
             if key in s:
                 x = s[key]
-                if key in _DEFAULT_WHEN_NULL:
+                spec = by_key[key]
+                if spec.computed:
                     if x is None:  # null: the default
                         continue
                     if x != x:  # NaN would silently mean the default too (the builder's marker for it)
                         raise SceneError(f"{group}[{k}].{key}", "must be finite (leave it out or give null "
                                                                  "for the default), got nan")
-                if not _is_num(x):
-                    _number(f"{group}[{k}].{key}", x)
-                col[k] = x
-    out = {key: np.array(col, dtype=np.float64) for key, col in cols.items()}
+                col[k] = _term_value(f"{group}[{k}].{key}", spec, x)
+    out = {spec.name: np.array(cols[spec.key], dtype=np.float64).reshape((m,) + tuple(spec.shape)) for spec in specs}
     out["ids"] = np.array(ids, dtype=np.int64).reshape(m, 2)
     out["aliases"] = spelled
     return out
+
+
+def _parse_model_data(group: str, v, specs) -> dict:
+    """The mapping of a term's per-model arrays under its YAML key: array name -> value (type-checked)."""
+    keys = tuple(spec.key for spec in specs)
+    _mapping(group, v, keys, tuple(spec.key for spec in specs if spec.required))
+    return {spec.name: _term_value(f"{group}.{spec.key}", spec, v[spec.key]) for spec in specs
+            if v.get(spec.key) is not None}
 
 
 def _unalias_item(path: str, item: dict, aliases: dict) -> tuple[dict, dict]:
@@ -485,7 +538,8 @@ def parse_scene(doc, *, source: str = "<string>") -> Scene:
         raise SceneError(source, "empty scene file")
     if type(doc) is not dict:
         raise SceneError(source, f"the top level must be a mapping of sections, got {_type_name(doc)}")
-    allowed = _TOP_KEYS
+    terms = _term_keys()
+    allowed = _TOP_KEYS[:2] + tuple(key for _, _, key in terms) + _TOP_KEYS[2:]
     for k in doc:
         if k not in allowed and not (isinstance(k, str) and k.startswith("x-")):
             raise SceneError(source, f"unknown top-level key {_show(k)}; allowed: {', '.join(allowed)} (and x-* keys)")
@@ -521,22 +575,25 @@ def parse_scene(doc, *, source: str = "<string>") -> Scene:
     n = n_explicit + generated
     if n == 0:
         raise SceneError("particles", "the scene has no particles (give 'particles', 'cloth' or 'benchmark_cloth')")
-    springs = _parse_pairs("springs", _item_list("springs", doc.get("springs")), n, _SPRING_KEYS,
-                           {"stiffness": (True, 0.0), "damping": (False, 0.0), "rest_length": (False, math.nan)},
-                           _SPRING_ALIASES)
-    gravs = _parse_pairs("gravitational", _item_list("gravitational", doc.get("gravitational")), n, _GRAV_KEYS,
-                         {"G": (True, 0.0), "softening": (False, math.nan)})
+    pairs, model_data = {}, {}
+    for term, cls, key in terms:
+        if any(spec.per == "pair" for spec in cls.data):
+            pairs[term] = _parse_pairs(key, _item_list(key, doc.get(key)), n,
+                                       [spec for spec in cls.data if spec.per == "pair"])
+        elif doc.get(key) is not None:
+            model_data[term] = _parse_model_data(key, doc[key], [spec for spec in cls.data if spec.per == "model"])
     plot = _parse_plot(doc["plot"], n) if doc.get("plot") is not None else None
 
     b = ModelBuilder(gravity=gravity, up_axis=up)
     if n_explicit:
         b.add_particles(particles["pos"], particles["vel"], particles["mass"], radius=particles["radius"],
-                        drag=particles["drag"], fixed=particles["fixed"])
-    # explicit springs before generated ones, so builder paths springs[k] match the file
-    if springs["ids"].shape[0]:
-        b.add_springs(springs["ids"], springs["stiffness"], springs["damping"], springs["rest_length"])
-    if gravs["ids"].shape[0]:
-        b.add_gravitationals(gravs["ids"], gravs["G"], gravs["softening"])
+                        fixed=particles["fixed"], **particles["arrays"])
+    # explicit pairs before generated ones, so builder paths springs[k] match the file
+    for term, items in pairs.items():
+        if items["ids"].shape[0]:
+            b.add_pairs(term, items["ids"], **{k: v for k, v in items.items() if k not in ("ids", "aliases")})
+    for term, values in model_data.items():
+        b.set_term_data(term, **values)
     for path, kw, paths in cloths:
         try:
             b.add_cloth_grid(**kw)
@@ -549,7 +606,10 @@ def parse_scene(doc, *, source: str = "<string>") -> Scene:
     try:
         model = b.finalize()
     except SceneError as e:
-        raise _spelled_as_written(e, "springs", springs["aliases"]) from None
+        for term, cls, key in terms:
+            if term in pairs:
+                e = _spelled_as_written(e, key, pairs[term]["aliases"])
+        raise e from None
     return Scene(model=model, config=cfg, plot=plot, source=source, name=name,
                  metadata={"description": doc.get("description", "")})
 

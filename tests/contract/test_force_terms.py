@@ -174,3 +174,33 @@ def test_declared_symmetry_is_honest(name, mode):
         assert symmetric and A.symmetric
     elif name == "spring":
         assert mode == "exact" and not symmetric and not A.symmetric
+
+
+@pytest.mark.parametrize("name", TERMS)
+def test_naive_force_is_the_reference_of_eval_force(name):
+    """Every term's ``naive_force`` (the independent reference that :func:`springsim.forces.naive.naive_forces`
+    sums) equals its ``eval_force`` on every particle (items between fixed particles kept)."""
+    rng = np.random.default_rng(737)
+    model = random_scene(rng)
+    term = _term(name, model, skip_fixed=False)
+    q, qd = _perturbed(model, rng)
+    ref = FORCE_TERMS[name].naive_force(model, q, qd)
+    f = eval_forces([term], q, qd)
+    np.testing.assert_allclose(f, ref, rtol=0, atol=1e-13 * max(np.abs(ref).max(), 1.0))
+
+
+@pytest.mark.parametrize("name", TERMS)
+def test_declared_data_is_consistent(name):
+    """A term's declared arrays have distinct names, defaults within their bounds and a YAML key; a term with
+    per-pair arrays is pairwise and external terms are not (pairwise forces are equal and opposite)."""
+    cls = FORCE_TERMS[name]
+    names = [s.name for s in cls.data]
+    assert len(set(names)) == len(names)
+    for spec in cls.data:
+        assert spec.key.isidentifier() and spec.unit is not None
+        if not spec.computed:
+            assert spec.in_bounds(np.array([spec.default]))[0] or spec.required
+        lo, hi = spec.sample_range()
+        assert spec.in_bounds(np.array([lo, hi])).all()
+    if any(s.per == "pair" for s in cls.data):
+        assert cls.pairwise and not cls.external

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from springsim import ModelBuilder
+from springsim.forces._data import data_terms
 from springsim.scene import benchmark_cloth
 
 
@@ -43,7 +44,14 @@ def shuffled_cloth(n: int = 12, seed: int = 5):
     perm = np.random.default_rng(seed).permutation(m.particle_count)  # new index k holds old particle perm[k]
     new_of_old = np.argsort(perm)
     kw = {f.name: getattr(m, f.name)[perm] for f in dataclasses.fields(m) if f.name.startswith("particle_")}
-    return dataclasses.replace(m, **kw, spring_indices=new_of_old[m.spring_indices], cloth_grids=())
+    terms = {name: dict(data) for name, data in m.terms.items()}
+    for name, cls in data_terms():  # per-particle arrays follow their particles, pair lists are renumbered
+        for spec in cls.data:
+            if spec.per == "particle":
+                terms[name][spec.name] = terms[name][spec.name][perm]
+        if "indices" in terms[name]:
+            terms[name]["indices"] = new_of_old[terms[name]["indices"]]
+    return dataclasses.replace(m, **kw, terms=terms, cloth_grids=())
 
 
 def scene(name: str):

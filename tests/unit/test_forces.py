@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from helpers import fd_jacobians, random_scene, rel_err, two_particle_scene
+from helpers import conservative, fd_jacobians, random_scene, rel_err, two_particle_scene
 from springsim import ModelBuilder
 from springsim.forces import (JACOBIAN_MODES, ForceDrag, ForceGravitational, ForceGravity, ForceSpring,
                               dense_jacobians, eval_forces, make_force_terms)
@@ -110,7 +110,7 @@ def test_drag_closed_form_and_jacobian():
 def test_potential_energy_gradient_is_conservative_force():
     """-grad(potential energy) equals the conservative force (springs without damping, gravitational, gravity)."""
     rng = np.random.default_rng(815)
-    model = random_scene(rng, damping=False, drag=False)
+    model = random_scene(rng, damping=False, select=conservative)
     terms = make_force_terms(model)
     q = model.particle_q + rng.normal(scale=0.05, size=model.particle_q.shape)
     qd = np.zeros_like(q)

@@ -373,8 +373,10 @@ def test_top_level_pin_uses_global_indices_and_boxes():
 
 # -- canonical names and aliases -------------------------------------------------------------------------
 def _arrays(model) -> dict:
-    return {f.name: getattr(model, f.name) for f in dataclasses.fields(model)
-            if isinstance(getattr(model, f.name), np.ndarray)}
+    out = {f.name: getattr(model, f.name) for f in dataclasses.fields(model)
+           if isinstance(getattr(model, f.name), np.ndarray)}
+    out.update({f"{term}.{name}": a for term, data in model.terms.items() for name, a in data.items()})
+    return out
 
 
 def _assert_same_model(m1, m2) -> None:
