@@ -384,27 +384,3 @@ class SolverConfig:
             if getattr(self, name) is not None and self.backend != "petsc":
                 out.append(name)
         return sorted(set(out))
-
-    def make_integrator(self, model):
-        """The configured integrator for ``model``, on the configured backend (the petsc one builds a
-        :class:`~springsim.distributed.DistributedSystem`: collective); an invalid combination names its
-        ``solver.<key>``."""
-        from .integrators import make_integrator
-
-        by_kwarg = {(f.metadata["kwarg"] or f.name): f.name for f in fields(self)}
-        opts = self.integrator_options()
-        try:
-            if self.backend == "petsc":
-                from .distributed import make_distributed
-
-                if opts.pop("solver", "auto") != "auto":
-                    raise SceneError("solver", "the petsc backend solves with PETSc's KSP; choose its method with "
-                                               "petsc_options (-ksp_type, -pc_type)")
-                linear = opts.pop("solver_options", {})
-                return make_distributed(model, self.integrator, linear_rtol=linear.get("rtol", 1e-6),
-                                        petsc_options=self.petsc_options, partitioner=self.partitioner or "contiguous",
-                                        **opts)
-            return make_integrator(self.integrator, model, **opts)
-        except SceneError as e:
-            name = by_kwarg.get(e.path)
-            raise (SceneError(f"solver.{self.yaml_key(name)}", e.message) if name else e) from None
