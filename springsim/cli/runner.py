@@ -31,12 +31,13 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
     from ..forces import JACOBIAN_MODES
     from ..integrators import INTEGRATORS
     from ..integrators._implicit import FORCING_RULES, STAGE_SOLVERS
-    from ..linsolve import LINEAR_SOLVERS
+    from ..linsolve import DEFAULT_RTOL, LINEAR_SOLVERS
 
     SolverConfig.add_arguments(p, choices={"integrator": list(INTEGRATORS), "linear_solver": list(LINEAR_SOLVERS),
                                            "jacobian": list(JACOBIAN_MODES), "backend": list(BACKENDS),
                                            "partitioner": list(PARTITIONERS), "forcing": list(FORCING_RULES),
-                                           "stage_solver": list(STAGE_SOLVERS)})
+                                           "stage_solver": list(STAGE_SOLVERS)},
+                               defaults={"linear_rtol": DEFAULT_RTOL})
     g = p.add_mutually_exclusive_group()
     g.add_argument("-v", "--verbose", action="count", default=0,
                    help="also log every set-up phase with its time (default: progress every few seconds and "
@@ -93,10 +94,11 @@ def configured_integrator(cfg: SolverConfig, model):
             if opts.pop("solver", "auto") != "auto":
                 raise SceneError("solver", "the petsc backend solves with PETSc's KSP; choose its method with "
                                            "petsc_options (-ksp_type, -pc_type)")
-            linear = opts.pop("solver_options", {})
-            return make_distributed(model, cfg.integrator, linear_rtol=linear.get("rtol", 1e-6),
-                                    petsc_options=cfg.petsc_options, partitioner=cfg.partitioner or "contiguous",
-                                    **opts)
+            rtol = opts.pop("solver_options", {}).get("rtol")
+            if rtol is not None:  # else make_distributed's default
+                opts["linear_rtol"] = rtol
+            return make_distributed(model, cfg.integrator, petsc_options=cfg.petsc_options,
+                                    partitioner=cfg.partitioner or "contiguous", **opts)
         return make_integrator(cfg.integrator, model, **opts)
     except SceneError as e:
         name = by_kwarg.get(e.path)
