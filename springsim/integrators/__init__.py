@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import inspect
 import warnings
 
 from ..model import Model
@@ -22,7 +23,19 @@ __all__ = ["INTEGRATORS", "Integrator", "ImplicitIntegrator", "StepStats", "PREC
            "NewtonConvergenceWarning",
            "IntegratorExplicitEuler", "IntegratorSymplecticEuler", "IntegratorMidpoint",
            "IntegratorLinearizedImplicit", "IntegratorImplicitEuler", "IntegratorBDF2", "IntegratorTRBDF2",
-           "IntegratorEnergyMomentum", "make_integrator", "integrator_class"]
+           "IntegratorEnergyMomentum", "make_integrator", "integrator_class", "IMPLICIT_OPTIONS"]
+
+def _implicit_options() -> frozenset:
+    """The keyword options of :class:`ImplicitIntegrator`'s constructor beyond those of :class:`Integrator`'s."""
+    own = set(inspect.signature(Integrator.__init__).parameters)
+    return frozenset(name for name, p in inspect.signature(ImplicitIntegrator.__init__).parameters.items()
+                     if p.kind is p.KEYWORD_ONLY and name not in own)
+
+
+#: The options of the implicit integrators (``solver``, ``jacobian``, ``newton_tol``, ...), derived from the
+#: signature of :class:`ImplicitIntegrator`: the explicit integrators ignore them (their ``unused_options``).
+IMPLICIT_OPTIONS: frozenset = _implicit_options()
+Integrator.unused_options = IMPLICIT_OPTIONS
 
 #: Registry: YAML/CLI name -> class.
 INTEGRATORS: dict[str, type[Integrator]] = {

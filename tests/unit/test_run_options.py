@@ -93,3 +93,21 @@ def test_names_are_checked_by_one_function():
     asm = SystemAssembler(model, make_force_terms(model))
     with pytest.raises(SceneError, match="^jacobian: unknown jacobian mode 'bogus'; choose one of exact"):
         asm.assemble(model.particle_q, model.particle_qd, 1.0, 1.0, "bogus")
+
+
+def test_unused_options_of_explicit_integrators_are_derived():
+    """The explicit integrators ignore exactly the keyword options ImplicitIntegrator adds to Integrator's, derived
+    from the signatures (an option added to the implicit integrators is known to the explicit ones at once)."""
+    from springsim.integrators import IMPLICIT_OPTIONS, INTEGRATORS, ImplicitIntegrator, Integrator
+
+    own = set(inspect.signature(Integrator.__init__).parameters)
+    implicit = {name for name, p in inspect.signature(ImplicitIntegrator.__init__).parameters.items()
+                if p.kind is p.KEYWORD_ONLY}
+    assert IMPLICIT_OPTIONS == implicit - own
+    assert {"solver", "solver_options", "jacobian", "newton_tol", "stage_solver", "forcing"} <= IMPLICIT_OPTIONS
+    assert not IMPLICIT_OPTIONS & {"system", "terms", "force_kernels"}
+    for name, cls in INTEGRATORS.items():
+        if cls.implicit:
+            assert cls.unused_options < IMPLICIT_OPTIONS, name
+        else:
+            assert cls.unused_options == IMPLICIT_OPTIONS, name
