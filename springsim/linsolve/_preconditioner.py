@@ -15,7 +15,7 @@ __all__ = ["Preconditioner"]
 
 
 class Preconditioner(ABC):
-    """Base of the preconditioners (protocol in the module docstring).
+    """Base of the preconditioners (protocol: :mod:`springsim.linsolve.preconditioners`).
 
     Subclasses set :attr:`name` and implement :meth:`build`; those that keep their operator
     across matrices override :meth:`setup` and the policy methods.
