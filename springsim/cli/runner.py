@@ -26,7 +26,14 @@ __all__ = ["add_run_options", "load_and_configure", "configured_integrator", "ex
 
 
 def add_run_options(p: argparse.ArgumentParser) -> None:
-    """The flags of every command that runs a scene: one per :class:`SolverConfig` field that declares one."""
+    """Add the flags of every command that runs a scene: one per :class:`SolverConfig` field that declares one,
+    and ``-v/--verbose`` or ``-q/--quiet``.
+
+    Parameters
+    ----------
+    p : argparse.ArgumentParser
+        The command's parser.
+    """
     from ..distributed.partition import PARTITIONERS
     from ..forces import JACOBIAN_MODES
     from ..integrators import INTEGRATORS
@@ -46,7 +53,19 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
 
 
 def load_and_configure(args: argparse.Namespace):
-    """``(scene, config)``: the scene of ``args.scene`` with the command-line overrides applied."""
+    """The scene of ``args.scene`` (a file, or the name of a shipped scene) with the command-line overrides applied.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        Parsed arguments with ``scene`` and the flags of :func:`add_run_options`.
+
+    Returns
+    -------
+    scene : Scene
+    config : SolverConfig
+        The scene's ``solver:`` block with the flags given applied (validated).
+    """
     from ..progress import phase
     from ..scene import load_scene
     from ..scene.shipped import resolve_scene
@@ -106,9 +125,37 @@ def configured_integrator(cfg: SolverConfig, model):
 
 
 def execute(scene, cfg, *, record: bool = True, frame_every: int = 1, progress=True, quiet: bool = False):
-    """Run ``scene`` as configured by ``cfg``: ``(integrator, trajectory)``; steps that did not meet their criteria
-    and fallbacks are reported by the caller (from the trajectory), not as Python warnings. ``progress`` as for
-    :func:`springsim.simulate` (default: log lines, :class:`springsim.progress.ProgressLog`)."""
+    """Run ``scene`` as configured by ``cfg``, with fixed or adaptive steps.
+
+    Steps that did not meet their criteria and fallbacks are reported by the caller (from the trajectory), not
+    as Python warnings; options the integrator does not use and energy growth are one line each on stderr.
+
+    Parameters
+    ----------
+    scene : Scene
+    cfg : SolverConfig
+    record : bool
+        Keep frames (else only the last state).
+    frame_every : int
+        Record every ``frame_every``-th step (adaptive runs: a frame every ``frame_every * dt``).
+    progress : callable, bool or None
+        As for :func:`springsim.simulate` (default: log lines, :class:`springsim.progress.ProgressLog`).
+    quiet : bool
+        No warning lines (the ranks other than the root of a distributed run).
+
+    Returns
+    -------
+    integrator : Integrator
+    trajectory : Trajectory or None
+        None on the ranks other than the root of a distributed run.
+
+    Raises
+    ------
+    SceneError
+        ``cfg`` has no time step, or an invalid combination of options.
+    SimulationError
+        The run failed; ``trajectory`` holds the frames so far.
+    """
     from ..adaptive import simulate_adaptive
     from ..driver import simulate
     from ..progress import as_progress, logger, phase
@@ -148,7 +195,19 @@ def execute(scene, cfg, *, record: bool = True, frame_every: int = 1, progress=T
 
 def warn_failed_steps(traj, *, keep_going: bool = True) -> int:
     """One ``springsim: error:`` line (``warning:`` with ``keep_going``) when steps did not meet their criteria
-    after their retakes; the number of such steps."""
+    after their retakes.
+
+    Parameters
+    ----------
+    traj : Trajectory
+    keep_going : bool
+        The run's status stays 0 (a warning, not an error).
+
+    Returns
+    -------
+    int
+        The number of such steps.
+    """
     s = traj.summary()
     if s["failed_steps"]:
         first = next(x for x in traj.stats if not x.ok)
@@ -192,14 +251,33 @@ def _newton_rows(s: dict) -> list[tuple[str, str]]:
 
 
 def print_rows(rows: list[tuple[str, str]]) -> None:
-    """The summary on stdout, one ``name: value`` row per line, values aligned."""
+    """Print the summary on stdout, one ``name: value`` row per line, values aligned.
+
+    Parameters
+    ----------
+    rows : list of (str, str)
+        The rows (:func:`summary_lines`).
+    """
     w = max(len(k) for k, _ in rows)
     for k, v in rows:
         print(f"{k + ':':<{w + 1}} {v}")
 
 
 def summary_lines(scene, cfg, integrator, traj) -> list[tuple[str, str]]:
-    """The rows of the run summary."""
+    """The rows of the run summary: the model, the integrator and its solvers, steps, times and iterations.
+
+    Parameters
+    ----------
+    scene : Scene
+    cfg : SolverConfig
+    integrator : Integrator
+    traj : Trajectory
+
+    Returns
+    -------
+    list of (str, str)
+        ``(name, value)`` rows for :func:`print_rows`.
+    """
     s = traj.summary()
     rows = _model_rows(scene)
     if integrator.implicit:
@@ -270,8 +348,21 @@ def save_or_rescue(traj, out: str, *, interrupted: bool = False) -> tuple[str | 
     temporary directory, written atomically like ``out`` (no empty or partial rescue file), and
     one line names it; when that fails too, one line says the frames are lost.
 
-    The status: :func:`interrupt_status` (130, 143) when the run was ``interrupted`` or a signal
-    arrived during the save, else 0 when ``out`` was written, else 1.
+    Parameters
+    ----------
+    traj : Trajectory
+    out : str
+        The ``--out`` file.
+    interrupted : bool
+        The run was interrupted (its frames are saved, the status says so).
+
+    Returns
+    -------
+    written : str or None
+        The file written (``out`` or the rescue file), None when both failed.
+    status : int
+        :func:`~springsim.cli.session.interrupt_status` (130, 143) when the run was ``interrupted`` or a
+        signal arrived during the save, else 0 when ``out`` was written, else 1.
     """
     why = where = None
     with signals_deferred() as got:
@@ -297,8 +388,22 @@ def save_or_rescue(traj, out: str, *, interrupted: bool = False) -> tuple[str | 
 
 
 def save_stopped_run(e, scene, cfg, out) -> int:
-    """Report a run stopped by ``e`` (:class:`SimulationError` or :class:`SimulationInterrupted`), save its frames to
-    ``out`` (if given; :func:`save_or_rescue`) and return the exit status (1, or 130/143 when interrupted)."""
+    """Report a run stopped by ``e`` and save its frames to ``out`` (if given; :func:`save_or_rescue`).
+
+    Parameters
+    ----------
+    e : SimulationError or SimulationInterrupted
+        What stopped the run (its ``trajectory`` holds the frames so far).
+    scene : Scene
+    cfg : SolverConfig
+    out : str or None
+        The ``--out`` file.
+
+    Returns
+    -------
+    int
+        The exit status: 1, or 130/143 when interrupted.
+    """
     interrupted = isinstance(e, SimulationInterrupted)
     print(f"springsim: {_stopped_by() if interrupted else 'error'}: {e}", file=sys.stderr)
     status = interrupt_status() if interrupted else 1
@@ -319,6 +424,24 @@ def load_trajectory_for(path, scene, scene_path):
     (a 7 MB compressed file announcing 3e8 particles costs nothing); so is a file without frames.
     A different model fingerprint (the file records the model it was computed from) is a one-line
     warning on stderr.
+
+    Parameters
+    ----------
+    path : str or Path
+        The trajectory file.
+    scene : Scene
+        The scene it is drawn or exported with.
+    scene_path : str
+        That scene's file, for the messages.
+
+    Returns
+    -------
+    Trajectory
+
+    Raises
+    ------
+    SpringsimError
+        Another particle count, or no frames.
     """
     from .._npz import npz_headers
     from ..driver import Trajectory

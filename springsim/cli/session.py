@@ -32,7 +32,12 @@ _received: list[int] = []
 
 
 def interrupt_status() -> int:
-    """Exit status of an interrupted command: 128 + the signal (130 for Ctrl-C, 143 for SIGTERM)."""
+    """Exit status of an interrupted command: 128 + the signal (130 for Ctrl-C, 143 for SIGTERM).
+
+    Returns
+    -------
+    int
+    """
     return 128 + (_received[-1] if _received else signal.SIGINT)
 
 
@@ -61,7 +66,12 @@ def _handlers(handlers: dict):
 @contextlib.contextmanager
 def signals_as_interrupts():
     """While the block runs, SIGTERM stops it like Ctrl-C: a ``KeyboardInterrupt`` (a run keeps its frames and
-    saves them, temporary files are removed); :func:`interrupt_status` tells which signal it was."""
+    saves them, temporary files are removed); :func:`interrupt_status` tells which signal it was.
+
+    Yields
+    ------
+    None
+    """
     del _received[:]
 
     def interrupt(signum, frame):
@@ -74,8 +84,14 @@ def signals_as_interrupts():
 
 @contextlib.contextmanager
 def signals_deferred():
-    """While the block runs, SIGINT and SIGTERM are recorded (in the yielded list) instead of raised, so a
-    save in progress finishes; the caller then ends with :func:`interrupt_status`."""
+    """While the block runs, SIGINT and SIGTERM are recorded instead of raised, so a save in progress finishes;
+    the caller then ends with :func:`interrupt_status`.
+
+    Yields
+    ------
+    list of int
+        The signals received during the block.
+    """
     got: list[int] = []
 
     def record(signum, frame):
@@ -93,6 +109,17 @@ def configure_logging(verbose: int = 0, quiet: bool = False):
 
     Level INFO (progress, slow set-up phases), DEBUG with ``verbose``, WARNING with ``quiet``.
     The handler is removed afterwards, so the library's logging is left as it was.
+
+    Parameters
+    ----------
+    verbose : int
+        ``-v`` given (any count): DEBUG.
+    quiet : bool
+        ``-q`` given: WARNING.
+
+    Yields
+    ------
+    None
     """
     from ..progress import logger
 
@@ -111,7 +138,19 @@ def configure_logging(verbose: int = 0, quiet: bool = False):
 
 
 def error_text(e: Exception, scene_path=None) -> str:
-    """The one-line message of a user error (a scene error names the scene file, an OS error its file)."""
+    """The one-line message of a user error (a scene error names the scene file, an OS error its file).
+
+    Parameters
+    ----------
+    e : Exception
+        A :class:`~springsim.errors.SpringsimError` or an ``OSError``.
+    scene_path : str, optional
+        The scene file, prefixed to a scene error's message.
+
+    Returns
+    -------
+    str
+    """
     if isinstance(e, OSError):
         msg = f"{e.filename + ': ' if getattr(e, 'filename', None) else ''}{e.strerror or e}"
     else:
