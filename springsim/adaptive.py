@@ -106,12 +106,12 @@ class StepSizeController:
     h_min, h_max : float
         Step size bounds [s], ``0 < h_min <= h_max``.
     safety : float
-        Safety factor (default 0.9).
+        Safety factor (default :attr:`SAFETY`, 0.9).
     grow : float
-        Largest ratio of consecutive steps (default 4; an integrator whose variable-step form is
+        Largest ratio of consecutive steps (default :attr:`GROW`, 4; an integrator whose variable-step form is
         zero-stable only below some ratio passes the smaller of the two).
     shrink : float
-        Smallest ratio of consecutive steps (default 0.2).
+        Smallest ratio of consecutive steps (default :attr:`SHRINK`, 0.2).
 
     Raises
     ------
@@ -119,13 +119,19 @@ class StepSizeController:
         When the step bounds are not ``0 < h_min <= h_max`` (naming ``h_min``).
     """
 
+    #: Default safety factor.
+    SAFETY = 0.9
+    #: Default largest ratio of consecutive steps.
+    GROW = 4.0
+    #: Default smallest ratio of consecutive steps.
+    SHRINK = 0.2
     #: Largest factor of a rejected step: it shrinks by at least 10 %, whatever its error.
     REJECT_FACTOR = 0.9
     #: Factor of a failed attempt (the step gave no usable result: Newton or a linear solve failed, a blow-up).
     FAILURE_FACTOR = 0.25
 
-    def __init__(self, order: int, *, h_min: float, h_max: float, safety: float = 0.9, grow: float = 4.0,
-                 shrink: float = 0.2):
+    def __init__(self, order: int, *, h_min: float, h_max: float, safety: float = SAFETY, grow: float = GROW,
+                 shrink: float = SHRINK):
         _check_step_bounds(h_min, h_max)
         self.order = order
         self.h_min, self.h_max = h_min, h_max
@@ -302,7 +308,8 @@ def _adaptive_integrator(model: Model, integrator: str | Integrator, options: di
 def simulate_adaptive(model: Model, integrator: str | Integrator, t_end: float, *, frame_dt: float | None = None,
                       t_frames=None, time_rtol: float = 1e-3, time_atol: float = 1e-4, h0: float | None = None,
                       h_min: float = ADAPTIVE_H_MIN, h_max: float | None = None, error_on: str = "qv",
-                      state: State | None = None, safety: float = 0.9, grow: float = 4.0, shrink: float = 0.2,
+                      state: State | None = None, safety: float = StepSizeController.SAFETY,
+                      grow: float = StepSizeController.GROW, shrink: float = StepSizeController.SHRINK,
                       max_steps: int = 1_000_000, progress: Callable[[float, float], None] | bool | None = None,
                       **integrator_options) -> Trajectory:
     """Integrate to ``t_end`` with step sizes chosen from a local error estimate.
