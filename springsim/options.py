@@ -236,7 +236,9 @@ class SolverConfig:
             setattr(self, f.name, _check(f, getattr(self, f.name), f"solver.{self.yaml_key(f.name)}"))
         if self.steps is not None and self.duration is not None:
             raise SceneError("solver", "give steps or duration, not both")
+        from .forces import JACOBIAN_MODES
         from .integrators import integrator_class
+        from .integrators._implicit import FORCING_RULES, STAGE_SOLVERS
         from .linsolve import linear_solver_class
 
         for name, check in (("integrator", integrator_class), ("linear_solver", linear_solver_class)):
@@ -246,16 +248,19 @@ class SolverConfig:
                     check(value)
                 except SceneError as e:
                     raise SceneError(f"solver.{self.yaml_key(name)}", e.message) from None
-        for name, what, module, choices in (("backend", "backend", ".options", "BACKENDS"),
-                                            ("partitioner", "partitioner", ".distributed.partition", "PARTITIONERS"),
-                                            ("forcing", "forcing rule", ".integrators._implicit", "FORCING_RULES"),
-                                            ("stage_solver", "stage solver", ".integrators._implicit",
-                                             "STAGE_SOLVERS"),
-                                            ("jacobian", "jacobian mode", ".forces", "JACOBIAN_MODES")):
+        def partitioners():
+            # by module path, and only when asked for: the distributed package's lazy names (its driver) import
+            # the drivers, which import this module; the partition module itself does not
+            return importlib.import_module(".distributed.partition", __package__).PARTITIONERS
+
+        for name, what, allowed in (("backend", "backend", lambda: BACKENDS),
+                                    ("partitioner", "partitioner", partitioners),
+                                    ("forcing", "forcing rule", lambda: FORCING_RULES),
+                                    ("stage_solver", "stage solver", lambda: STAGE_SOLVERS),
+                                    ("jacobian", "jacobian mode", lambda: JACOBIAN_MODES)):
             value = getattr(self, name)
             if value is not None:
-                allowed = getattr(importlib.import_module(module, __package__), choices)
-                check_choice(value, allowed, param=f"solver.{name}", what=what)
+                check_choice(value, allowed(), param=f"solver.{name}", what=what)
         return self
 
     @classmethod
