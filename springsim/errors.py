@@ -12,7 +12,7 @@ from __future__ import annotations
 
 __all__ = ["EnergyGrowthWarning", "SpringsimError", "SceneError", "SceneTypeError", "SimulationError", "SolverError",
            "SimulationInterrupted", "SpringsimWarning", "ConvergenceWarning", "FallbackWarning",
-           "NewtonConvergenceWarning", "UnusedOptionWarning", "registered"]
+           "NewtonConvergenceWarning", "UnusedOptionWarning", "registered", "check_choice"]
 
 
 class SpringsimError(Exception):
@@ -40,6 +40,44 @@ class SceneTypeError(SceneError, TypeError):
     """Scene or model input of the wrong type (e.g. a string where a number belongs)."""
 
 
+def check_choice(value, choices, *, param: str, what: str):
+    """``value`` when it is one of ``choices``, else a :class:`SceneError` naming ``param`` and listing them.
+
+    The one check of a name against the names a registry or a tuple of modes allows (the Jacobian
+    modes, the forcing rules, the registered integrators, ...): every layer that validates such a name
+    (the run configuration, a factory, the assembler) calls it, so they agree on what is valid and on
+    the message.
+
+    Parameters
+    ----------
+    value : object
+        The name given (any type: a non-string is reported, not raised as a TypeError).
+    choices : iterable of str
+        The allowed names (a tuple, or a registry's keys).
+    param : str
+        Field path named by the error (``"solver.jacobian"``).
+    what : str
+        What the names are, for the message (``"jacobian mode"``).
+
+    Returns
+    -------
+    object
+        ``value``.
+
+    Raises
+    ------
+    SceneError
+        ``value`` is not one of ``choices``.
+    """
+    try:
+        ok = value in choices
+    except TypeError:  # an unhashable value looked up in a registry
+        ok = False
+    if not ok:
+        raise SceneError(param, f"unknown {what} {value!r:.60}; choose one of {', '.join(choices)}")
+    return value
+
+
 def registered(registry: dict, name, *, param: str, what: str):
     """``registry[name]``, or a :class:`SceneError` naming ``param`` and listing the registered names.
 
@@ -64,10 +102,7 @@ def registered(registry: dict, name, *, param: str, what: str):
     SceneError
         ``name`` is not registered.
     """
-    try:
-        return registry[name]
-    except (KeyError, TypeError):
-        raise SceneError(param, f"unknown {what} {name!r:.60}; choose one of {', '.join(registry)}") from None
+    return registry[check_choice(name, registry, param=param, what=what)]
 
 
 class SolverError(SpringsimError):

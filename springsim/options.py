@@ -20,7 +20,7 @@ import importlib
 import math
 from dataclasses import dataclass, field, fields, replace
 
-from .errors import SceneError, SceneTypeError
+from .errors import SceneError, SceneTypeError, check_choice
 
 __all__ = ["ADAPTIVE_H_MIN", "BACKENDS", "MAX_STEPS", "DEFAULT_STEPS", "SolverConfig", "option", "describe_int", "steps_for_duration"]
 
@@ -64,8 +64,8 @@ def steps_for_duration(duration: float, dt: float) -> int:
 
 
 def option(default=None, *, kind: str, help: str, yaml: str | None = None, cli: str | None = None,
-           metavar: str | None = None, lo: float | None = None, hi: float | None = None, strict: bool = False,
-           to: str = "run", kwarg: str | None = None):
+           cli_aliases: tuple[str, ...] = (), metavar: str | None = None, lo: float | None = None,
+           hi: float | None = None, strict: bool = False, to: str = "run", kwarg: str | None = None):
     """Declare a field of :class:`SolverConfig`.
 
     Parameters
@@ -81,6 +81,8 @@ def option(default=None, *, kind: str, help: str, yaml: str | None = None, cli: 
         Key in the ``solver:`` block (default: the field name).
     cli : str, optional
         Command-line flag of ``springsim run`` (None: YAML and Python only).
+    cli_aliases : tuple of str
+        Older spellings of the flag, still accepted (``--rtol`` for ``--linear-rtol``).
     lo, hi, strict
         Bounds: ``>= lo`` (``> lo`` with ``strict``), ``<= hi``.
     to : {"integrator", "solver", "run"}
@@ -89,8 +91,8 @@ def option(default=None, *, kind: str, help: str, yaml: str | None = None, cli: 
     kwarg : str, optional
         The keyword name there (default: the field name).
     """
-    meta = dict(kind=kind, help=help, yaml=yaml, cli=cli, metavar=metavar, lo=lo, hi=hi, strict=strict, to=to,
-                kwarg=kwarg)
+    meta = dict(kind=kind, help=help, yaml=yaml, cli=cli, cli_aliases=tuple(cli_aliases), metavar=metavar, lo=lo,
+                hi=hi, strict=strict, to=to, kwarg=kwarg)
     return field(default=default, metadata=meta)
 
 
@@ -157,9 +159,10 @@ class SolverConfig:
     jacobian: str | None = option(None, kind="name", cli="--jacobian", metavar="MODE", to="integrator",
                                   help="Jacobian mode (default: mixed for minimize stages, exact for pa2, else exact "
                                        "where the solver takes any matrix and spd where it needs SPD matrices)")
-    linear_rtol: float | None = option(None, kind="float", cli="--rtol", metavar="R", lo=0.0, strict=True,
-                                       to="solver", kwarg="rtol",
-                                       help="relative residual tolerance of iterative linear solvers (default 1e-6)")
+    linear_rtol: float | None = option(None, kind="float", cli="--linear-rtol", cli_aliases=("--rtol",),
+                                       metavar="R", lo=0.0, strict=True, to="solver", kwarg="rtol",
+                                       help="relative residual tolerance of iterative linear solves, serial and "
+                                            "PETSc (default: springsim.linsolve.DEFAULT_RTOL)")
     stage_solver: str | None = option(None, kind="name", cli="--stage-solver", metavar="RULE", to="integrator",
                                       help="how implicit stages are solved: minimize (the incremental potential, "
                                            "projected Newton and a line search on it; the default), residual "
@@ -233,7 +236,9 @@ class SolverConfig:
             setattr(self, f.name, _check(f, getattr(self, f.name), f"solver.{self.yaml_key(f.name)}"))
         if self.steps is not None and self.duration is not None:
             raise SceneError("solver", "give steps or duration, not both")
+        from .forces import JACOBIAN_MODES
         from .integrators import integrator_class
+        from .integrators._implicit import FORCING_RULES, STAGE_SOLVERS
         from .linsolve import linear_solver_class
 
         for name, check in (("integrator", integrator_class), ("linear_solver", linear_solver_class)):
@@ -243,18 +248,19 @@ class SolverConfig:
                     check(value)
                 except SceneError as e:
                     raise SceneError(f"solver.{self.yaml_key(name)}", e.message) from None
-        for name, what, module, choices in (("backend", "backend", ".options", "BACKENDS"),
-                                            ("partitioner", "partitioner", ".distributed.partition", "PARTITIONERS"),
-                                            ("forcing", "forcing rule", ".integrators._implicit", "FORCING_RULES"),
-                                            ("stage_solver", "stage solver", ".integrators._implicit",
-                                             "STAGE_SOLVERS"),
-                                            ("jacobian", "jacobian mode", ".forces", "JACOBIAN_MODES")):
+        def partitioners():
+            # by module path, and only when asked for: the distributed package's lazy names (its driver) import
+            # the drivers, which import this module; the partition module itself does not
+            return importlib.import_module(".distributed.partition", __package__).PARTITIONERS
+
+        for name, what, allowed in (("backend", "backend", lambda: BACKENDS),
+                                    ("partitioner", "partitioner", partitioners),
+                                    ("forcing", "forcing rule", lambda: FORCING_RULES),
+                                    ("stage_solver", "stage solver", lambda: STAGE_SOLVERS),
+                                    ("jacobian", "jacobian mode", lambda: JACOBIAN_MODES)):
             value = getattr(self, name)
             if value is not None:
-                allowed = getattr(importlib.import_module(module, __package__), choices)
-                if value not in allowed:
-                    raise SceneError(f"solver.{name}", f"unknown {what} {value!r:.60}; choose one of "
-                                                       f"{', '.join(allowed)}")
+                check_choice(value, allowed(), param=f"solver.{name}", what=what)
         return self
 
     @classmethod
@@ -288,12 +294,23 @@ class SolverConfig:
 
     # -- command line -------------------------------------------------------------------------------------
     @classmethod
-    def add_arguments(cls, parser, choices: dict | None = None) -> None:
-        """Add a flag for every field that declares one (type-checked, one-line errors; ``choices`` lists the
-        allowed names of ``"name"`` fields in ``--help``)."""
+    def add_arguments(cls, parser, choices: dict | None = None, defaults: dict | None = None) -> None:
+        """Add a flag for every field that declares one (type-checked, one-line errors).
+
+        Parameters
+        ----------
+        parser : argparse.ArgumentParser
+            The parser of a command that runs a scene.
+        choices : dict, optional
+            Field name -> the allowed names of a ``"name"`` field (checked by argparse, listed in ``--help``).
+        defaults : dict, optional
+            Field name -> the default its owner declares (a field whose default is None: the integrator's or
+            solver's own), shown in ``--help`` in place of the help text's ``(default: ...)``.
+        """
         import argparse
 
         choices = choices or {}
+        defaults = defaults or {}
         steps_or_duration = parser.add_mutually_exclusive_group()
         for f in fields(cls):
             m = f.metadata
@@ -318,10 +335,12 @@ class SolverConfig:
 
             convert.__name__ = f.name
             help_ = m["help"]
+            if f.name in defaults:
+                help_ = f"{help_.partition(' (default')[0]} (default {defaults[f.name]:g})"
             if f.name in choices:
                 help_ += f"; one of: {', '.join(choices[f.name])}"
             target = steps_or_duration if f.name in ("steps", "duration") else parser
-            target.add_argument(m["cli"], dest=f.name, type=convert, metavar=m["metavar"],
+            target.add_argument(m["cli"], *m["cli_aliases"], dest=f.name, type=convert, metavar=m["metavar"],
                                 choices=choices.get(f.name), help=f"{help_} (overrides solver.{m['yaml'] or f.name})")
 
     def with_overrides(self, **overrides) -> "SolverConfig":
@@ -384,27 +403,3 @@ class SolverConfig:
             if getattr(self, name) is not None and self.backend != "petsc":
                 out.append(name)
         return sorted(set(out))
-
-    def make_integrator(self, model):
-        """The configured integrator for ``model``, on the configured backend (the petsc one builds a
-        :class:`~springsim.distributed.DistributedSystem`: collective); an invalid combination names its
-        ``solver.<key>``."""
-        from .integrators import make_integrator
-
-        by_kwarg = {(f.metadata["kwarg"] or f.name): f.name for f in fields(self)}
-        opts = self.integrator_options()
-        try:
-            if self.backend == "petsc":
-                from .distributed import make_distributed
-
-                if opts.pop("solver", "auto") != "auto":
-                    raise SceneError("solver", "the petsc backend solves with PETSc's KSP; choose its method with "
-                                               "petsc_options (-ksp_type, -pc_type)")
-                linear = opts.pop("solver_options", {})
-                return make_distributed(model, self.integrator, linear_rtol=linear.get("rtol", 1e-6),
-                                        petsc_options=self.petsc_options, partitioner=self.partitioner or "contiguous",
-                                        **opts)
-            return make_integrator(self.integrator, model, **opts)
-        except SceneError as e:
-            name = by_kwarg.get(e.path)
-            raise (SceneError(f"solver.{self.yaml_key(name)}", e.message) if name else e) from None

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
+from ..errors import check_choice
 from ..forces import JACOBIAN_MODES
 from .pattern import BlockPattern
 
@@ -203,9 +204,13 @@ class SystemAssembler:
         damping_geometry : ndarray (N, 3), optional
             Positions at which the dissipative terms take their geometry (:meth:`~springsim.forces.ForceTerm.
             eval_jacobians`): the implicit stages' frozen damping.
+
+        Raises
+        ------
+        SceneError
+            A ``ValueError`` for a ``mode`` not in :data:`~springsim.forces.JACOBIAN_MODES`.
         """
-        if mode not in JACOBIAN_MODES:
-            raise ValueError(f"jacobian mode must be one of {', '.join(JACOBIAN_MODES)}, got {mode!r}")
+        check_choice(mode, JACOBIAN_MODES, param="jacobian", what="jacobian mode")
         t0 = time.perf_counter()
         V = self._values
         for term in self.terms:

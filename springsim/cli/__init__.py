@@ -26,7 +26,7 @@ from dataclasses import dataclass
 from typing import Callable
 
 from ..errors import SpringsimError
-from .run import _Exit, configure_logging, error_text, interrupt_status, signals_as_interrupts
+from .session import _Exit, configure_logging, error_text, interrupt_status, signals_as_interrupts
 
 __all__ = ["COMMANDS", "Command", "main", "build_parser"]
 

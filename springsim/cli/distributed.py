@@ -13,6 +13,9 @@ from __future__ import annotations
 import sys
 
 from ..errors import SimulationError, SpringsimError
+from .runner import (_provenance, execute, print_rows, save_or_rescue, save_stopped_run, summary_lines,
+                     warn_failed_steps)
+from .session import _Exit
 
 __all__ = ["agree", "run_distributed", "abort_on_error"]
 
@@ -51,12 +54,10 @@ def abort_on_error(exc: BaseException) -> None:
 def run_distributed(args, scene, cfg) -> int:
     """Run ``scene`` with the petsc backend as configured (see the module docstring); the exit status.
 
-    The run is the serial one (:func:`springsim.cli.run.execute`: the same integrators, adaptive stepping and
+    The run is the serial one (:func:`springsim.cli.runner.execute`: the same integrators, adaptive stepping and
     driver) over a :class:`~springsim.distributed.DistributedSystem`; rank 0 prints and saves.
     """
     from ..distributed import env_rank, import_petsc
-    from .run import (_Exit, _provenance, execute, print_rows, save_or_rescue, save_stopped_run, summary_lines,
-                      warn_failed_steps)
 
     import_petsc()  # BackendUnavailable (a SpringsimError): one line with the install hint
     root = env_rank() == 0

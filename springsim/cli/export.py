@@ -33,7 +33,7 @@ class _ExportCommand:
         from ..export import export_trajectory, require_meshio
         from ..scene import load_scene
         from ..scene.shipped import resolve_scene
-        from .run import load_trajectory_for
+        from .runner import load_trajectory_for
 
         require_meshio(args.format)  # before loading anything
         args.scene = str(resolve_scene(args.scene))

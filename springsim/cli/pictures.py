@@ -6,7 +6,7 @@
     draw one frame as a PNG or every M-th frame as an animated GIF.
 
 Both run a scene through the same path and with the same options as ``springsim run``
-(:mod:`springsim.cli.run`), including its failure reports and exit statuses.
+(:mod:`springsim.cli.runner`), including its failure reports and exit statuses.
 """
 
 from __future__ import annotations
@@ -18,7 +18,8 @@ from pathlib import Path
 from .._atomic import check_output_path
 from ..errors import SceneError, SimulationError, SimulationInterrupted, SpringsimError
 from .argtypes import int_at_least
-from .run import add_run_options, execute, load_and_configure, load_trajectory_for, warn_failed_steps
+from .runner import add_run_options, execute, load_and_configure, load_trajectory_for, warn_failed_steps
+from .session import _Exit, _stopped_by, interrupt_status
 
 #: The pictures each command writes (``--out`` must end in one of these).
 PICTURE_SUFFIXES = {"plot": (".png",), "render --frame": (".png",), "render --every": (".gif",)}
@@ -28,8 +29,6 @@ __all__ = ["plot_command", "render_command"]
 
 def _run_scene(args):
     """``(scene, trajectory)`` of the scene ``args.scene`` run as ``springsim run`` would (exit 1/130 on failure)."""
-    from .run import _Exit, _stopped_by, interrupt_status
-
     scene, cfg = load_and_configure(args)
     try:
         _, traj = execute(scene, cfg)

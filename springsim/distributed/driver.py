@@ -15,13 +15,15 @@ import time
 
 from ..driver import simulate
 from ..integrators import make_integrator
+from ..linsolve import DEFAULT_RTOL
 from .system import DistributedSystem
 
 __all__ = ["simulate_distributed", "make_distributed"]
 
 
-def make_distributed(model, integrator: str, *, comm=None, linear_rtol: float = 1e-6, linear_maxiter: int = 1000,
-                     petsc_options=None, partitioner: str = "contiguous", force_kernels: str = "auto", **options):
+def make_distributed(model, integrator: str, *, comm=None, linear_rtol: float = DEFAULT_RTOL,
+                     linear_maxiter: int = 1000, petsc_options=None, partitioner: str = "contiguous",
+                     force_kernels: str = "auto", **options):
     """The integrator ``integrator`` over a new :class:`DistributedSystem` of ``model`` (collective).
 
     Parameters
@@ -33,7 +35,8 @@ def make_distributed(model, integrator: str, *, comm=None, linear_rtol: float = 
     comm : petsc4py Comm, optional
         Default ``PETSc.COMM_WORLD``.
     linear_rtol, linear_maxiter : float, int
-        Tolerance on the true relative residual and iteration limit of the KSP solves.
+        Tolerance on the true relative residual (default :data:`~springsim.linsolve._base.DEFAULT_RTOL`) and
+        iteration limit of the KSP solves.
     petsc_options : str or dict, optional
         PETSc options (``"-pc_gamg_threshold 0.02 -ksp_type gmres"``); the command line's and ``PETSC_OPTIONS``'
         apply too.
@@ -56,9 +59,9 @@ def make_distributed(model, integrator: str, *, comm=None, linear_rtol: float = 
 
 
 def simulate_distributed(model, integrator: str, dt: float, steps: int, *, comm=None, frame_every: int = 1,
-                         record: bool = True, progress=None, check_energy: bool = True, linear_rtol: float = 1e-6,
-                         linear_maxiter: int = 1000, petsc_options=None, partitioner: str = "contiguous",
-                         **options):
+                         record: bool = True, progress=None, check_energy: bool = True,
+                         linear_rtol: float = DEFAULT_RTOL, linear_maxiter: int = 1000, petsc_options=None,
+                         partitioner: str = "contiguous", **options):
     """Run ``steps`` steps of ``integrator`` on every rank of ``comm`` (default ``PETSc.COMM_WORLD``).
 
     :func:`make_distributed` then :func:`springsim.simulate`; the arguments are theirs. On the root rank the

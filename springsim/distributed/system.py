@@ -36,7 +36,7 @@ import numpy as np
 from ..assembly import SystemAssembler
 from ..errors import SceneError
 from ..forces import make_force_terms
-from ..linsolve import LinearSolveResult
+from ..linsolve import DEFAULT_RTOL, LinearSolveResult
 from ..system import System
 from ._petsc import import_petsc
 from .partition import PARTITIONERS, LocalPart, contiguous_offsets, pair_families, partition, system_order
@@ -139,7 +139,8 @@ class DistributedSystem(System):
     comm : petsc4py Comm, optional
         Default ``PETSc.COMM_WORLD``.
     rtol, atol, maxiter : float, float, int
-        Linear tolerance (true relative residual) and iteration limit of the first attempt.
+        Linear tolerance (true relative residual; default :data:`~springsim.linsolve._base.DEFAULT_RTOL`) and
+        iteration limit of the first attempt.
     petsc_options : str or dict, optional
         PETSc options (``"-pc_gamg_threshold 0.02"`` or ``{"pc_gamg_threshold": 0.02}``) inserted into the
         options database before the solver reads it.
@@ -161,7 +162,7 @@ class DistributedSystem(System):
     #: Fixed particles are not in the state arrays: the energy bound adds their constant gravity itself.
     holds_fixed = False
 
-    def __init__(self, model, comm=None, *, rtol: float = 1e-6, atol: float = 0.0, maxiter: int = 1000,
+    def __init__(self, model, comm=None, *, rtol: float = DEFAULT_RTOL, atol: float = 0.0, maxiter: int = 1000,
                  petsc_options=None, ksp_type: str | None = None, pc_type: str = "gamg",
                  partitioner: str = "contiguous", force_kernels: str = "auto"):
         PETSc, MPI = import_petsc()

@@ -165,10 +165,10 @@ class Integrator(ABC):
     #: Largest ratio of consecutive step sizes the method tolerates (adaptive stepping).
     max_step_ratio: ClassVar[float] = float("inf")
     #: Keyword options other integrators take that this one ignores (:func:`make_integrator` warns about them).
-    unused_options: ClassVar[frozenset] = frozenset({
-        "solver", "jacobian", "newton_tol", "newton_maxiter", "residual_rtol", "on_nonconvergence", "solver_options",
-        "line_search", "min_step", "escalate_jacobian", "escalate_after", "forcing", "forcing_max",
-        "filter_estimates", "stage_solver", "force_rtol", "force_atol", "retake_halvings"})
+    #: For the explicit integrators, every option of the implicit ones:
+    #: :data:`springsim.integrators.IMPLICIT_OPTIONS`, derived from the signature of
+    #: :class:`~springsim.integrators.ImplicitIntegrator` and set here by :mod:`springsim.integrators`.
+    unused_options: ClassVar[frozenset] = frozenset()
 
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)

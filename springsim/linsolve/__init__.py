@@ -11,7 +11,7 @@ chooses among them by size and symmetry. Adding a solver is a module plus one li
 from __future__ import annotations
 
 from ..errors import registered
-from ._base import BACKWARD_TOL, LinearSolver, LinearSolveResult, backward_error, relative_residual
+from ._base import BACKWARD_TOL, DEFAULT_RTOL, LinearSolver, LinearSolveResult, backward_error, relative_residual
 from .auto import LinearSolverAuto
 from .dense import LinearSolverDense
 from .direct import LinearSolverDirect
@@ -22,7 +22,8 @@ from .preconditioners import PRECONDITIONERS, Preconditioner
 __all__ = ["LINEAR_SOLVERS", "LinearSolver", "LinearSolveResult", "LinearSolverDense", "LinearSolverDirect",
            "LinearSolverIterative", "LinearSolverCG", "LinearSolverAMGCG", "LinearSolverAMGGMRES", "LinearSolverAuto",
            "CG", "GMRES", "KRYLOV_METHODS", "Preconditioner", "PRECONDITIONERS", "make_linear_solver",
-           "linear_solver_class", "relative_residual", "backward_error", "BACKWARD_TOL"]
+           "linear_solver_class", "relative_residual", "backward_error", "BACKWARD_TOL",
+           "DEFAULT_RTOL"]
 
 #: Registry: name -> solver class (the iterative ones are presets of :class:`LinearSolverIterative`).
 LINEAR_SOLVERS: dict[str, type[LinearSolver]] = {

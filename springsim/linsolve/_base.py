@@ -35,7 +35,12 @@ import scipy.sparse as sp
 from .._threads import single_blas_thread
 
 __all__ = ["LinearSolver", "LinearSolveResult", "as_system_matrix", "relative_residual", "backward_error",
-           "inf_norm", "BACKWARD_TOL"]
+           "inf_norm", "BACKWARD_TOL", "DEFAULT_RTOL"]
+
+#: Default relative tolerance of iterative linear solves, ``|b - A x|_2 <= rtol |b|_2``: of every solver
+#: (the ``rtol`` of :class:`LinearSolver`; the direct ones accept it and are judged by their backward error
+#: instead) and of the PETSc backend's KSP solves. The run option ``linear_rtol`` overrides it.
+DEFAULT_RTOL = 1e-6
 
 #: Default normwise backward-error tolerance of the direct solvers: about 4500 units of round-off,
 #: far above what a stable factorisation gives (1e-17 ... 1e-15 measured on the test systems) and
@@ -218,7 +223,8 @@ class LinearSolver(ABC):
     Parameters
     ----------
     rtol, atol : float
-        Stop when ``|b - A x| <= max(rtol |b|, atol)`` (iterative solvers).
+        Stop when ``|b - A x| <= max(rtol |b|, atol)`` (iterative solvers; default ``rtol``
+        :data:`DEFAULT_RTOL`, ``atol`` 0).
     maxiter : int or None
         Iteration limit (iterative solvers).
     """
@@ -228,7 +234,7 @@ class LinearSolver(ABC):
     #: integrators then default to the ``spd`` Jacobian mode.
     needs_spd: bool = False
 
-    def __init__(self, *, rtol: float = 1e-8, atol: float = 0.0, maxiter: int | None = None):
+    def __init__(self, *, rtol: float = DEFAULT_RTOL, atol: float = 0.0, maxiter: int | None = None):
         if not (rtol >= 0 and atol >= 0):
             raise ValueError(f"rtol and atol must be >= 0, got {rtol}, {atol}")
         self.rtol = float(rtol)

@@ -37,8 +37,8 @@ import scipy.sparse as sp
 from .. import _accel
 
 __all__ = ["KERNELS", "BsrOperator", "BsrProduct", "CompiledVCycle", "block_diagonal_inverse",
-           "block_gauss_seidel_backward", "block_gauss_seidel_forward", "bsr_matmat", "bsr_operator",
-           "numba_available", "resolve_kernels", "smoothed_prolongator"]
+           "block_gauss_seidel_backward", "block_gauss_seidel_forward", "bsr_block_diagonal", "bsr_matmat",
+           "bsr_operator", "numba_available", "resolve_kernels", "smoothed_prolongator"]
 
 #: Accepted values of the ``kernels`` option.
 KERNELS = ("auto", "numba", "scipy")
@@ -146,15 +146,24 @@ def bsr_matmat(X: sp.bsr_matrix, Y: sp.bsr_matrix, kernels: str = "scipy",
     return (X @ Y).tobsr(blocksize=(X.blocksize[0], Y.blocksize[1])), None
 
 
+def bsr_block_diagonal(A: sp.bsr_matrix) -> np.ndarray:
+    """The diagonal blocks of a square BSR matrix with square blocks, (nb, bs, bs) (zero where absent)."""
+    bs = A.blocksize[0]
+    nb = A.shape[0] // bs
+    rows = np.repeat(np.arange(nb), np.diff(A.indptr))
+    on = rows == A.indices
+    D = np.zeros((nb, bs, bs))
+    D[rows[on]] = A.data[on]
+    return D
+
+
 def block_diagonal_inverse(A: sp.bsr_matrix, kernels: str = "scipy") -> tuple[np.ndarray, np.ndarray]:
     """``(D, Dinv)``: the diagonal blocks of the square BSR matrix ``A`` (zero where absent), (nb, bs, bs),
     and their inverses. ``kernels="numba"``: one compiled pass (Gauss-Jordan with partial pivoting);
-    ``"scipy"``: :func:`~springsim.linsolve._sa.bsr_block_diagonal` and ``numpy.linalg.inv`` (LAPACK).
+    ``"scipy"``: :func:`bsr_block_diagonal` and ``numpy.linalg.inv`` (LAPACK).
     Both raise ``numpy.linalg.LinAlgError`` for a singular block and agree to round-off otherwise."""
     if kernels == "numba":
         return _numba().block_diagonal_inverse(A.indptr, A.indices, np.ascontiguousarray(A.data))
-    from ._sa import bsr_block_diagonal
-
     D = bsr_block_diagonal(A)
     return D, np.linalg.inv(D)
 

@@ -30,18 +30,10 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.linalg import eigh_tridiagonal, eigvalsh_tridiagonal
 
+from ._kernels import block_diagonal_inverse, bsr_matmat, bsr_operator, smoothed_prolongator
+from ._kernels import bsr_block_diagonal  # noqa: F401  (re-exported: the setup's block-diagonal helper)
+
 __all__ = ["bsr_block_diagonal", "lanczos_rho", "smoothed_aggregation_levels"]
-
-
-def bsr_block_diagonal(A: sp.bsr_matrix) -> np.ndarray:
-    """The diagonal blocks of a square BSR matrix with square blocks, (nb, bs, bs) (zero where absent)."""
-    bs = A.blocksize[0]
-    nb = A.shape[0] // bs
-    rows = np.repeat(np.arange(nb), np.diff(A.indptr))
-    on = rows == A.indices
-    D = np.zeros((nb, bs, bs))
-    D[rows[on]] = A.data[on]
-    return D
 
 
 def _block_diagonal_operator(D: np.ndarray) -> sp.bsr_matrix:
@@ -63,8 +55,6 @@ def lanczos_rho(A: sp.bsr_matrix, D: np.ndarray, Dinv: np.ndarray, steps: int = 
     (None on breakdown). ``kernels="numba"`` applies the three matrices with the compiled block
     product (:class:`~springsim.linsolve._kernels.BsrOperator`).
     """
-    from ._kernels import bsr_operator
-
     n = A.shape[0]
     Dop, Dinvop = (bsr_operator(_block_diagonal_operator(M), kernels) for M in (D, Dinv))
     A = bsr_operator(A, kernels)
@@ -155,7 +145,6 @@ def smoothed_aggregation_levels(A: sp.bsr_matrix, B: np.ndarray, *, theta: float
     from pyamg.multilevel import MultilevelSolver
     from pyamg.strength import symmetric_strength_of_connection
 
-    from ._kernels import block_diagonal_inverse, bsr_matmat, smoothed_prolongator
 
     levels = []
     used = []

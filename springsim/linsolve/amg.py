@@ -53,7 +53,7 @@ import time
 import numpy as np
 
 from ..progress import logger, phase
-from .preconditioners import Preconditioner
+from ._preconditioner import Preconditioner
 
 _log = logger.getChild("linsolve")
 

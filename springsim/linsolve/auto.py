@@ -17,7 +17,7 @@ the true gravitational Jacobian, with which implicit Euler stays stable on close
 
 from __future__ import annotations
 
-from ._base import LinearSolver
+from ._base import DEFAULT_RTOL, LinearSolver
 from .direct import LinearSolverDirect
 from .iterative import LinearSolverAMGCG, LinearSolverAMGGMRES
 
@@ -45,7 +45,7 @@ class LinearSolverAuto(LinearSolver):
     name = "auto"
     needs_spd = True
 
-    def __init__(self, *, rtol: float = 1e-6, atol: float = 0.0, maxiter: int | None = None,
+    def __init__(self, *, rtol: float = DEFAULT_RTOL, atol: float = 0.0, maxiter: int | None = None,
                  direct_max_dofs: int = DIRECT_MAX_DOFS, fallback: str = "direct"):
         super().__init__(rtol=rtol, atol=atol, maxiter=maxiter)
         self.direct_max_dofs = int(direct_max_dofs)

@@ -29,7 +29,7 @@ import time
 import numpy as np
 
 from ..errors import registered
-from ._base import LinearSolver, LinearSolveResult
+from ._base import DEFAULT_RTOL, LinearSolver, LinearSolveResult
 from .krylov import KRYLOV_METHODS, KrylovInfo, KrylovMethod
 from .preconditioners import Preconditioner, make_preconditioner
 
@@ -58,7 +58,8 @@ class LinearSolverIterative(LinearSolver):
     preconditioner : str or Preconditioner
         ``"none"``, ``"jacobi"``, ``"block-jacobi"``, ``"amg"`` or an instance.
     rtol, atol : float
-        Stop when the true residual ``|b - A x| <= max(rtol |b|, atol)`` (default rtol 1e-6).
+        Stop when the true residual ``|b - A x| <= max(rtol |b|, atol)`` (default rtol
+        :data:`~springsim.linsolve._base.DEFAULT_RTOL`).
     maxiter : int or None
         Krylov iteration limit (default: the preconditioner's, e.g. ``max(1000, n)`` for
         Jacobi-type, 500 for AMG).
@@ -72,7 +73,7 @@ class LinearSolverIterative(LinearSolver):
     name = "iterative"
 
     def __init__(self, krylov: str | KrylovMethod = "cg", preconditioner: str | Preconditioner = "block-jacobi", *,
-                 rtol: float = 1e-6, atol: float = 0.0, maxiter: int | None = None,
+                 rtol: float = DEFAULT_RTOL, atol: float = 0.0, maxiter: int | None = None,
                  fallback: LinearSolver | str | None = "direct", warm_start: bool = True):
         super().__init__(rtol=rtol, atol=atol, maxiter=maxiter)
         if isinstance(krylov, str):

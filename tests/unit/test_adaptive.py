@@ -178,3 +178,49 @@ def test_steps_at_h_min_that_miss_the_tolerance_are_not_accepted():
     with pytest.raises(SimulationError, match="cannot meet the tolerance") as e:
         simulate_adaptive(model, "tr_bdf2", 1.0, h_min=2.0 ** -6, h0=2.0 ** -6, time_rtol=1e-13, time_atol=1e-13)
     assert "h_min" in str(e.value) and e.value.trajectory.frame_count >= 1
+
+
+def test_step_size_controller_accepts_and_chooses_the_next_step():
+    """The elementary controller: accept at err <= 1; h min(grow, max(shrink, safety err^(-1/(p+1)))) after an
+    accepted step, never growing right after a rejection; at least 10 % smaller after a rejection; h/4 after a
+    failed attempt; always within [h_min, h_max]."""
+    from springsim.adaptive import StepSizeController
+
+    c = StepSizeController(2, h_min=1e-4, h_max=0.1)
+    assert (c.safety, c.grow, c.shrink) == (0.9, 4.0, 0.2)
+    assert c.accepts(1.0) and c.accepts(0.0) and not c.accepts(1.0 + 1e-12)
+    assert c.accepted(0.01, 0.5) == pytest.approx(0.01 * 0.9 * 0.5 ** (-1 / 3))
+    assert c.accepted(0.01, 1e-9) == pytest.approx(0.04)  # bounded by grow
+    assert c.accepted(0.01, 0.0) == pytest.approx(0.04)  # no error: grow
+    assert c.accepted(0.01, 1.0) == pytest.approx(0.009)  # safety
+    assert c.accepted(0.05, 1e-9) == 0.1  # h_max
+    assert c.rejected(0.01, 2.0) == pytest.approx(0.01 * 0.9 * 2.0 ** (-1 / 3))
+    assert c.just_rejected
+    assert c.accepted(0.01, 1e-9) == pytest.approx(0.01)  # no growth right after a rejection ...
+    assert not c.just_rejected and c.accepted(0.01, 1e-9) == pytest.approx(0.04)  # ... then again
+    assert c.rejected(0.01, 1.0 + 1e-9) == pytest.approx(0.009)  # at least 10 % smaller
+    assert c.rejected(0.01, 1e6) == pytest.approx(0.002)  # bounded by shrink
+    assert c.rejected(2e-4, 1e6) == 1e-4  # h_min
+    assert c.failed(0.01) == pytest.approx(0.0025) and c.just_rejected
+    assert c.failed(2e-4) == 1e-4
+    assert c.at_h_min(1e-4) and not c.at_h_min(1.01e-4)
+    assert StepSizeController(4, h_min=1e-4, h_max=0.1).accepted(0.01, 0.5) == pytest.approx(
+        0.01 * 0.9 * 0.5 ** (-1 / 5))  # the exponent follows the order
+
+
+def test_step_size_controller_first_step_and_end_of_run():
+    """The first step is h0 (default min(1e-3, h_max)) clipped to [h_min, h_max]; a step lands on the end of the run,
+    and where less than h_min would remain after it, the rest is split into two equal steps."""
+    from springsim.adaptive import StepSizeController
+
+    c = StepSizeController(2, h_min=1e-4, h_max=0.1, safety=0.8, grow=2.0, shrink=0.5)
+    assert c.first_step() == 1e-3 and c.first_step(1.0) == 0.1 and c.first_step(1e-9) == 1e-4
+    assert StepSizeController(2, h_min=1e-6, h_max=1e-4).first_step() == 1e-4
+    assert c.fit(0.01, 1.0) == 0.01
+    assert c.fit(0.01, 0.01 * (1 + 1e-13)) == 0.01 * (1 + 1e-13)  # lands on the end
+    assert c.fit(0.01, 0.005) == 0.005
+    assert c.fit(0.01, 0.01 + 5e-5) == pytest.approx(0.5 * (0.01 + 5e-5))  # two steps, not one stretched
+    assert c.accepted(0.01, 1e-9) == pytest.approx(0.02) and c.rejected(0.01, 1e6) == pytest.approx(0.005)
+    for lo, hi in ((0.0, 1.0), (0.2, 0.1), (-1.0, 1.0)):
+        with pytest.raises(SceneError, match="h_min"):
+            StepSizeController(2, h_min=lo, h_max=hi)
