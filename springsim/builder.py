@@ -17,7 +17,10 @@ from __future__ import annotations
 import numpy as np
 
 from .errors import SceneError, SceneTypeError
-from .forces._data import data_terms, term_group
+from .errors import check_numeric as _numeric
+from .forces._data import check_rule as _check_rule
+from .forces._data import data_terms, format_value as _fmt, term_group
+from .forces.gravitational import SOFTENING_PRECISION, SOFTENING_TIME, default_softening
 from .model import AXES, ClothGrid, Model
 from .topology import PLANES, cloth_grid_pairs, cloth_pin_mask, index_mask
 
@@ -31,41 +34,6 @@ COEFFICIENT_ALIASES = {"ke": "stiffness", "kd": "damping", "ke_y": "stiffness_y"
                        "ke_shear": "stiffness_shear", "kd_shear": "damping_shear", "ke_bend": "stiffness_bend",
                        "kd_bend": "damping_bend"}
 
-#: Largest time step [s] for which :func:`default_softening` keeps a pair's masses in the implicit matrix
-#: to :data:`SOFTENING_PRECISION`.
-SOFTENING_TIME = 1.0
-#: Relative precision of the masses that :func:`default_softening` guarantees up to :data:`SOFTENING_TIME`.
-SOFTENING_PRECISION = 1e-9
-
-
-def default_softening(G, m_i, m_j) -> np.ndarray:
-    """Default softening length [m] of gravitational pairs: ``(u T^2 G max(m_i, m_j) / tau)^(1/3)``.
-
-    A pair inside its core (``l < eps``) adds the stiffness ``h^2 c / eps^3`` (``c = G m_i m_j``)
-    to the diagonal of the implicit matrix, next to the masses, which then survive only to the
-    relative precision ``u h^2 c / (eps^3 min(m_i, m_j))`` (``u`` the unit round-off; it is what
-    :meth:`springsim.assembly.SystemAssembler.precision_loss` measures). This default makes that
-    at most ``tau`` = :data:`SOFTENING_PRECISION` for every step ``h <= T`` = :data:`SOFTENING_TIME`,
-    so particles that meet (or start at the same place) stay well-conditioned and the centre of
-    mass of the pair moves right. It depends only on the pair's masses and ``G``, not on the
-    step. For ``G`` = 1 and 1 kg masses it is 6.0 mm; give ``softening`` explicitly to resolve
-    closer encounters (with smaller steps).
-
-    Parameters
-    ----------
-    G : float or ndarray
-        Gravitational constant of each pair [N m^2/kg^2], scalar or shape (P,).
-    m_i, m_j : float or ndarray
-        Masses of the pair's two particles [kg], scalar or shape (P,).
-
-    Returns
-    -------
-    ndarray
-        Softening length [m], shape of the broadcast inputs.
-    """
-    u = np.finfo(np.float64).eps
-    scale = u * SOFTENING_TIME**2 / SOFTENING_PRECISION
-    return np.cbrt(scale * np.asarray(G, dtype=np.float64) * np.maximum(m_i, m_j))
 
 
 def unalias(path: str, given: dict) -> dict:
@@ -104,25 +72,6 @@ def unalias(path: str, given: dict) -> dict:
             raise SceneError(path, f"give {canonical} or its alias {alias}, not both")
         out[canon] = (value, name)
     return out
-
-
-def _numeric(name: str, value, dtype=np.float64) -> np.ndarray:
-    """``value`` as a float64 array; a SceneTypeError naming ``name`` for strings, booleans and other non-numbers.
-
-    Integers are converted exactly (never truncated); booleans are refused as numbers (``mass=True`` is a mistake,
-    not 1 kg).
-    """
-    if isinstance(value, (str, bytes)):
-        raise SceneTypeError(name, f"must be numeric, got {type(value).__name__} {value!r:.60}")
-    try:
-        a = np.asarray(value)
-    except (TypeError, ValueError):  # ragged nested lists
-        raise SceneTypeError(name, "must be numeric, got a ragged or non-numeric sequence") from None
-    if a.dtype.kind not in "iuf":
-        what = {"b": "booleans", "U": "strings", "S": "bytes", "O": "objects", "c": "complex numbers"}.get(
-            a.dtype.kind, str(a.dtype))
-        raise SceneTypeError(name, f"must be numeric, got {what}")
-    return a.astype(dtype)
 
 
 def _as_rows(name: str, value, count: int | None = None, width: int = 3) -> np.ndarray:
@@ -866,23 +815,11 @@ def _vector(path: str, v, n: int, **rule) -> tuple:
     return tuple(_number(f"{path}[{k}]", x, **rule) for k, x in enumerate(v))
 
 
-def _fmt(v) -> str:
-    if np.ndim(v) == 0:
-        return f"{float(v):g}"
-    return "[" + ", ".join(f"{float(x):g}" for x in np.ravel(v)) + "]"
-
-
 def _check_finite(group: str, name: str, a: np.ndarray) -> None:
     ok = np.isfinite(a) if a.ndim == 1 else np.isfinite(a).all(axis=1)
     bad = np.flatnonzero(~ok)
     if bad.size:
         raise SceneError(f"{group}[{bad[0]}].{name}", f"must be finite, got {_fmt(a[bad[0]])}")
-
-
-def _check_rule(group: str, name: str, a: np.ndarray, ok: np.ndarray, rule: str) -> None:
-    bad = np.flatnonzero(~ok)
-    if bad.size:
-        raise SceneError(f"{group}[{bad[0]}].{name}", f"{rule}, got {_fmt(a[bad[0]])}")
 
 
 def _check_pairs(group: str, ij: np.ndarray, n: int) -> None:

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 __all__ = ["EnergyGrowthWarning", "SpringsimError", "SceneError", "SceneTypeError", "SimulationError", "SolverError",
            "SimulationInterrupted", "SpringsimWarning", "ConvergenceWarning", "FallbackWarning",
-           "NewtonConvergenceWarning", "UnusedOptionWarning", "registered", "check_choice"]
+           "NewtonConvergenceWarning", "UnusedOptionWarning", "registered", "check_choice", "check_numeric"]
 
 
 class SpringsimError(Exception):
@@ -38,6 +38,46 @@ class SceneError(SpringsimError, ValueError):
 
 class SceneTypeError(SceneError, TypeError):
     """Scene or model input of the wrong type (e.g. a string where a number belongs)."""
+
+
+def check_numeric(name: str, value, dtype=None):
+    """``value`` as a float64 array; a SceneTypeError naming ``name`` for strings, booleans and other non-numbers.
+
+    Integers are converted exactly (never truncated); booleans are refused as numbers (``mass=True`` is a mistake,
+    not 1 kg).
+
+    Parameters
+    ----------
+    name : str
+        Path of the value in error messages (``particles[3].mass``).
+    value : array_like
+        The value.
+    dtype : numpy dtype, optional
+        Result type (default float64).
+
+    Returns
+    -------
+    ndarray
+
+    Raises
+    ------
+    SceneTypeError
+        For strings, booleans, ragged sequences and other non-numbers.
+    """
+    import numpy as np
+
+    dtype = np.float64 if dtype is None else dtype
+    if isinstance(value, (str, bytes)):
+        raise SceneTypeError(name, f"must be numeric, got {type(value).__name__} {value!r:.60}")
+    try:
+        a = np.asarray(value)
+    except (TypeError, ValueError):  # ragged nested lists
+        raise SceneTypeError(name, "must be numeric, got a ragged or non-numeric sequence") from None
+    if a.dtype.kind not in "iuf":
+        what = {"b": "booleans", "U": "strings", "S": "bytes", "O": "objects", "c": "complex numbers"}.get(
+            a.dtype.kind, str(a.dtype))
+        raise SceneTypeError(name, f"must be numeric, got {what}")
+    return a.astype(dtype)
 
 
 def check_choice(value, choices, *, param: str, what: str):

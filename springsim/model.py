@@ -6,6 +6,7 @@ velocities of shape (N, 3) [m], [m/s]; ``M`` the diagonal mass matrix.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
@@ -58,6 +59,12 @@ class ClothGrid(NamedTuple):
 FINGERPRINT_V1 = ("particle_q", "particle_qd", "particle_mass", "particle_radius", "particle_drag", "particle_fixed",
                   "spring_indices", "spring_stiffness", "spring_damping", "spring_rest_length",
                   "gravitational_indices", "gravitational_G", "gravitational_softening")
+
+
+@functools.lru_cache(maxsize=1)
+def _model_names() -> frozenset:
+    """The names the :class:`Model` itself has (fields, properties, methods): not term data."""
+    return frozenset(dir(Model)) | frozenset(Model.__dataclass_fields__)
 
 
 def _registered() -> dict:
@@ -152,7 +159,7 @@ class Model:
         ``gravitational_indices`` (P, 2), ``gravitational_G`` (P,), the gravitational constant of each pair
         [N m^2/kg^2], and ``gravitational_softening`` (P,), the softening length of each pair [m] (below it
         the attraction has a linear core, see :mod:`springsim.forces.gravitational`; default
-        :func:`springsim.builder.default_softening`).
+        :func:`springsim.forces.gravitational.default_softening`).
     gravity : float
         Acceleration along the up axis [m/s^2] (default -9.81).
     up_axis : int
@@ -193,7 +200,7 @@ class Model:
         for k, v in base.items():
             object.__setattr__(self, k, _readonly(np.asarray(v)))
         given = {t: dict(d) for t, d in (terms or {}).items()}
-        table = term_attributes()
+        table = term_attributes(reserved=_model_names())
         for attr, v in arrays.items():
             hit = table.get(attr)
             if hit is None or hit[1] == "count":
@@ -217,7 +224,7 @@ class Model:
             raise AttributeError(name)
         from .forces._data import term_attributes
 
-        hit = term_attributes().get(name)
+        hit = term_attributes(reserved=_model_names()).get(name)
         if hit is None:
             raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
         term, array = hit
@@ -298,7 +305,7 @@ class Model:
             h.update(f"{a.dtype.str}{a.shape}".encode())
             h.update(a.tobytes())
 
-        table = term_attributes()
+        table = term_attributes(reserved=_model_names())
         for name in FINGERPRINT_V1:
             if name in table or name in self.__dataclass_fields__:
                 array(name, getattr(self, name))
@@ -324,7 +331,7 @@ class Model:
         """
         from .forces._data import term_attributes
 
-        table = term_attributes()
+        table = term_attributes(reserved=_model_names())
         done = {table[name] for name in FINGERPRINT_V1 if name in table}
         registry = _registered()
         out = []

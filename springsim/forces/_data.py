@@ -25,7 +25,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ArraySpec", "PER", "term_attributes", "data_terms", "term_group"]
+from ..errors import SceneError, check_numeric
+
+__all__ = ["ArraySpec", "PER", "term_attributes", "data_terms", "term_group", "check_rule", "format_value"]
 
 #: Where an array has one value: per particle, per pair of the term's pair list, or once per model.
 PER = ("particle", "pair", "model")
@@ -187,10 +189,7 @@ class ArraySpec:
         SceneTypeError, SceneError
             Not numbers, or the wrong shape.
         """
-        from ..builder import _numeric
-        from ..errors import SceneError
-
-        a = _numeric(path, value)
+        a = check_numeric(path, value)
         tail = tuple(self.shape)
         if count is None:
             if a.shape != tail:
@@ -221,7 +220,6 @@ class ArraySpec:
             At the first invalid value: ``group[k].key: must be finite, got nan`` or
             ``group[k].key: must be >= 0, got -3`` (``group.key`` for a per-model value).
         """
-        from ..errors import SceneError
 
         values = a.reshape((1,) + a.shape) if not per_item else a
         rows = values.reshape(values.shape[0], int(np.prod(values.shape[1:], dtype=np.int64)))
@@ -290,17 +288,10 @@ def term_group(name: str, cls) -> str:
     return cls.yaml_key or name
 
 
-def _model_names() -> set:
-    """The names the :class:`~springsim.model.Model` itself has (fields, properties, methods): not term data."""
-    from ..model import Model
-
-    return set(dir(Model)) | set(Model.__dataclass_fields__)
-
-
 _TABLE: dict = {"key": None, "table": None}
 
 
-def term_attributes(registry: dict | None = None) -> dict[str, tuple[str, str]]:
+def term_attributes(registry: dict | None = None, *, reserved=frozenset()) -> dict[str, tuple[str, str]]:
     """Model attribute name -> ``(term, array)`` for every array of the registered terms: ``particle_<array>``
     (per particle), ``<term>_<array>`` (per pair and per model), ``<term>_indices`` (a pair list) and
     ``<term>_count`` (its length, array ``"count"``).
@@ -309,7 +300,9 @@ def term_attributes(registry: dict | None = None) -> dict[str, tuple[str, str]]:
     ----------
     registry : dict, optional
         Name -> term class; default :data:`springsim.forces.FORCE_TERMS` (then the table is cached until the
-        registry changes).
+        registry or ``reserved`` changes).
+    reserved : set of str
+        Names no term may claim (the :class:`~springsim.model.Model`'s own fields, properties and methods).
 
     Returns
     -------
@@ -322,11 +315,12 @@ def term_attributes(registry: dict | None = None) -> dict[str, tuple[str, str]]:
         Two terms (or a term and the model) claiming one name, or a spec inconsistent with its term.
     """
     reg = _registry() if registry is None else registry
-    key = tuple((name, id(cls), cls.data) for name, cls in reg.items())
+    reserved = frozenset(reserved)
+    key = (tuple((name, id(cls), cls.data) for name, cls in reg.items()), reserved)
     if registry is None and _TABLE["key"] == key:
         return _TABLE["table"]
     table: dict[str, tuple[str, str]] = {}
-    base = _model_names()
+    base = reserved
 
     def claim(attr, term, array):
         if attr in table or attr in base:
@@ -350,3 +344,18 @@ def term_attributes(registry: dict | None = None) -> dict[str, tuple[str, str]]:
     if registry is None:
         _TABLE.update(key=key, table=table)
     return table
+
+
+def format_value(v) -> str:
+    """A value for an error message: ``%g`` of a number, ``[a, b, c]`` of an array."""
+    if np.ndim(v) == 0:
+        return f"{float(v):g}"
+    return "[" + ", ".join(f"{float(x):g}" for x in np.ravel(v)) + "]"
+
+
+def check_rule(group: str, name: str, a: np.ndarray, ok: np.ndarray, rule: str) -> None:
+    """A :class:`~springsim.errors.SceneError` naming the first item of ``group`` whose ``name`` breaks ``rule``
+    (``ok`` False there): ``group[k].name: rule, got value``."""
+    bad = np.flatnonzero(~ok)
+    if bad.size:
+        raise SceneError(f"{group}[{bad[0]}].{name}", f"{rule}, got {format_value(a[bad[0]])}")
