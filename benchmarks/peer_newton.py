@@ -40,11 +40,17 @@ default 1e4, ``--kd`` default 0):
    seconds per frame of each at its own limit (``ms_per_substep * substeps / 1000``), and
    ``diff_final_m``, the largest particle distance between the two trajectories after the timed frames.
    The load average (``os.getloadavg``) is printed with the table and recorded per size.
+5. **Error against the validated reference** (``--reference-frames F``, sizes up to ``--reference-max-n``):
+   frame-cost's reference (:func:`benchmarks.reference_cache.refined_reference`: velocity Verlet at 2, 4
+   and 8 times the explicit substep count, positions at every frame, cached under the same keys as
+   ``frame-cost --ke``), and both engines from rest for ``F`` frames at the equal count; ``err_*_m`` is the
+   RMS over particles of the position error, max over the frames (frame-cost's error), ``ref_floor_m``
+   the reference's floor (the two finest levels' difference): an error below it is not resolved.
 
 Usage::
 
     export OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 NUMBA_NUM_THREADS=1
-    python -m benchmarks peer-newton --sizes 32 64 128 --repeats 20 --json benchmarks/results/peer_newton.json
+    python -m benchmarks peer-newton --sizes 32 64 128 256 --repeats 20 --reference-frames 70
     python -m benchmarks peer-newton --quick           # n = 6, 3 frames (tests)
 """
 
@@ -62,7 +68,7 @@ import numpy as np
 from .common import RESULTS_DIR, machine_info, markdown_table, write_csv
 
 __all__ = ["COLUMNS", "FRAME_DT", "PeerUnavailable", "import_peer", "newton_model", "SpringsimEngine", "NewtonEngine",
-           "stable", "smallest_stable", "measure", "main"]
+           "stable", "smallest_stable", "reference_errors", "measure", "main"]
 
 #: Frame length [s].
 FRAME_DT = 1.0 / 60.0
@@ -70,7 +76,7 @@ FRAME_DT = 1.0 / 60.0
 COLUMNS = ["n", "springs", "force_kernels", "substeps_springsim", "substeps_newton", "substeps_equal",
            "ms_per_substep_springsim", "ms_per_substep_newton", "ratio", "ratio_min", "ratio_max",
            "cpu_s_per_frame_springsim", "cpu_s_per_frame_newton", "diff_1frame_m", "diff_final_m", "frames",
-           "load_start", "load_end"]
+           "ref_frames", "err_springsim_m", "err_newton_m", "ref_floor_m", "load_start", "load_end"]
 
 
 class PeerUnavailable(RuntimeError):
@@ -318,8 +324,52 @@ def _diff(a, b) -> float:
     return d if np.isfinite(d) else float("inf")
 
 
+def reference_errors(model, engines, substeps: int, frames: int, *, case: str, base_substeps: int, cache_dir=None,
+                     log=print) -> dict:
+    """Each engine's error against frame-cost's validated reference over ``frames`` frames from rest.
+
+    Parameters
+    ----------
+    model : springsim.Model
+    engines : sequence of SpringsimEngine or NewtonEngine
+    substeps : int
+        Substeps per frame of the engines.
+    frames : int
+        Frames of 1/60 s.
+    case : str
+        Cache name of the reference (frame-cost's, e.g. ``cloth32_ke10000``).
+    base_substeps : int
+        Substeps per frame of the reference's coarsest level (three levels, doubling).
+    cache_dir : path-like, optional
+        Cache of the reference levels (default frame-cost's, ``benchmarks/results/frame_ref``).
+    log : callable
+        Progress printer.
+
+    Returns
+    -------
+    dict
+        ``err_<engine name>_m`` (RMS over particles, max over the frames [m]) and ``ref_floor_m``.
+    """
+    from . import reference_cache
+
+    cache = reference_cache.CACHE_DIR if cache_dir is None else Path(cache_dir)
+    ref = reference_cache.refined_reference(model, base_substeps, 3, frames, case=case, cache_dir=cache, log=log)
+    out = {"ref_floor_m": ref.floor}
+    for eng in engines:
+        eng.set_state(model.particle_q, model.particle_qd)
+        err = 0.0
+        for f in range(1, frames + 1):
+            eng.advance(substeps, FRAME_DT / substeps)
+            err = max(err, float(reference_cache.frame_rms(eng.state()[0], ref.q[f])))
+        out[f"err_{eng.name}_m"] = err
+    log(f"  over {frames} frames against the reference (floor {ref.floor:.3g} m): "
+        + ", ".join(f"{e.name} {out[f'err_{e.name}_m']:.3g} m" for e in engines))
+    return out
+
+
 def measure(n: int, *, repeats: int, ke: float = 1e4, kd: float = 0.0, force_kernels: str = "auto",
-            window: float = 0.1, max_steps: int | None = 2000, log=print) -> dict:
+            window: float = 0.1, max_steps: int | None = 2000, reference_frames: int = 0, cache_dir=None,
+            log=print) -> dict:
     """One row of :data:`COLUMNS` for ``benchmark_cloth(n, stiffness=ke, damping=kd)`` (module docstring).
 
     Parameters
@@ -335,6 +385,10 @@ def measure(n: int, *, repeats: int, ke: float = 1e4, kd: float = 0.0, force_ker
         springsim's force kernels (``auto``, ``numba``, ``numpy``).
     window, max_steps : float, int
         Window [s] and substep cap of the stability criterion (:func:`stable`).
+    reference_frames : int
+        Frames of the error against the validated reference (0: not measured).
+    cache_dir : path-like, optional
+        Cache of the reference (:func:`reference_errors`).
     log : callable
         Progress printer.
 
@@ -384,6 +438,11 @@ def measure(n: int, *, repeats: int, ke: float = 1e4, kd: float = 0.0, force_ker
                cpu_s_per_frame_springsim=ms["springsim"] * limits["springsim"] / 1e3,
                cpu_s_per_frame_newton=ms["newton"] * limits["newton"] / 1e3, diff_1frame_m=diff1,
                diff_final_m=_diff(sp, nt), frames=repeats, load_start=load_start, load_end=os.getloadavg()[0])
+    if reference_frames:
+        case = f"cloth{n}_ke{ke:g}" + (f"_kd{kd:g}" if kd else "")
+        row.update(ref_frames=reference_frames, **reference_errors(model, (sp, nt), S, reference_frames, case=case,
+                                                                   base_substeps=2 * start, cache_dir=cache_dir,
+                                                                   log=log))
     log(f"n = {n}: {ms['springsim']:.4g} ms / substep springsim, {ms['newton']:.4g} ms newton, ratio "
         f"{row['ratio']:.3g} ({row['ratio_min']:.3g}-{row['ratio_max']:.3g}); load {load_start:.2f} -> "
         f"{row['load_end']:.2f}")
@@ -400,16 +459,24 @@ def main(argv=None) -> int:
                    help="springsim's force evaluation (default auto)")
     p.add_argument("--window", type=float, default=0.1, help="window of the stability criterion [s] (default 0.1)")
     p.add_argument("--max-steps", type=int, default=2000, help="substep cap of the stability window (default 2000)")
-    p.add_argument("--quick", action="store_true", help="n = 6, 3 timed frames (tests)")
+    p.add_argument("--reference-frames", type=int, default=0,
+                   help="frames of the error against frame-cost's validated reference (default 0: not measured)")
+    p.add_argument("--reference-max-n", type=int, default=128,
+                   help="largest size whose reference is computed (default 128)")
+    p.add_argument("--cache-dir", type=Path, default=None,
+                   help="cache of the references (default frame-cost's, benchmarks/results/frame_ref)")
+    p.add_argument("--quick", action="store_true", help="n = 6, 3 timed frames, 5 reference frames (tests)")
     p.add_argument("--out", type=Path, default=RESULTS_DIR, help="output directory of peer_newton.csv")
     p.add_argument("--json", default=None, help="also write the rows, machine and load to this JSON file")
     a = p.parse_args(argv)
     if a.quick:
-        a.sizes, a.repeats = [6], 3
+        a.sizes, a.repeats, a.reference_frames = [6], 3, 5
     if not a.sizes or any(n < 2 for n in a.sizes):
         p.error("--sizes: every size must be >= 2")
     if a.repeats < 1:
         p.error("--repeats must be >= 1")
+    if a.reference_frames < 0:
+        p.error("--reference-frames must be >= 0")
     try:
         wp, newton = import_peer()
     except PeerUnavailable as exc:
@@ -419,7 +486,8 @@ def main(argv=None) -> int:
     print(f"newton {newton.__version__}, warp-lang {wp.__version__} (CPU, float32); threads: "
           + ", ".join(f"{k}={v}" for k, v in threads.items()))
     rows = [measure(n, repeats=a.repeats, ke=a.ke, kd=a.kd, force_kernels=a.force_kernels, window=a.window,
-                    max_steps=a.max_steps) for n in a.sizes]
+                    max_steps=a.max_steps, reference_frames=a.reference_frames if n <= a.reference_max_n else 0,
+                    cache_dir=a.cache_dir) for n in a.sizes]
     a.out.mkdir(parents=True, exist_ok=True)
     write_csv(a.out / "peer_newton.csv", rows, COLUMNS)
     print(markdown_table(rows, COLUMNS))

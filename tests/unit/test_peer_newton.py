@@ -81,12 +81,14 @@ def test_newton_model_refuses_what_newton_lacks(peer):
 
 @pytest.mark.slow
 def test_peer_benchmark_quick(peer, tmp_path, capsys):
-    """--quick runs both engines, writes every column and prints the load with the table."""
-    assert peer_newton.main(["--quick", "--out", str(tmp_path)]) == 0
+    """--quick runs both engines, writes every column (errors against the reference too) and prints the load."""
+    assert peer_newton.main(["--quick", "--out", str(tmp_path), "--cache-dir", str(tmp_path / "ref")]) == 0
     with open(tmp_path / "peer_newton.csv") as fh:
         rows = list(csv.DictReader(fh))
     assert len(rows) == 1 and list(rows[0]) == peer_newton.COLUMNS
     r = rows[0]
     assert int(r["substeps_equal"]) == max(int(r["substeps_springsim"]), int(r["substeps_newton"]))
     assert float(r["diff_1frame_m"]) < 1e-4 and float(r["ratio"]) > 0
+    # the same motion to round-off, so the same error against the reference to well within it
+    assert abs(float(r["err_newton_m"]) - float(r["err_springsim_m"])) < 1e-4 and int(r["ref_frames"]) == 5
     assert "load average" in capsys.readouterr().out
