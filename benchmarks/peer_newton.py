@@ -33,7 +33,9 @@ default 1e4, ``--kd`` default 0):
    counts.
 4. **Timing at equal substeps**: ``substeps_equal`` = the larger of the two limits (both stable there).
    Both engines restart from rest and advance one frame at a time, alternately (ABBA order), for
-   ``--repeats`` frames each; every frame is timed with ``time.process_time`` (one thread each: warp's CPU
+   ``--repeats`` frames each, and with them springsim's public path (:class:`SimulateEngine`: one
+   ``springsim.simulate`` call per frame, driver checks included; ``*_simulate`` columns, its ratio to
+   the adjacent Newton frame likewise); every frame is timed with ``time.process_time`` (one thread each: warp's CPU
    kernels are serial; set ``OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 NUMBA_NUM_THREADS=1``). The table
    gives the median ms per substep of each engine, ``ratio`` = the median over the frames of
    springsim's frame time over Newton's adjacent one (robust to the load of a shared machine), the CPU
@@ -67,7 +69,8 @@ import numpy as np
 
 from .common import RESULTS_DIR, machine_info, markdown_table, write_csv
 
-__all__ = ["COLUMNS", "FRAME_DT", "PeerUnavailable", "import_peer", "newton_model", "SpringsimEngine", "NewtonEngine",
+__all__ = ["COLUMNS", "FRAME_DT", "PeerUnavailable", "import_peer", "newton_model", "SpringsimEngine",
+           "SimulateEngine", "NewtonEngine",
            "stable", "smallest_stable", "reference_errors", "measure", "main"]
 
 #: Frame length [s].
@@ -75,6 +78,7 @@ FRAME_DT = 1.0 / 60.0
 
 COLUMNS = ["n", "springs", "force_kernels", "substeps_springsim", "substeps_newton", "substeps_equal",
            "ms_per_substep_springsim", "ms_per_substep_newton", "ratio", "ratio_min", "ratio_max",
+           "ms_per_substep_simulate", "ratio_simulate",
            "cpu_s_per_frame_springsim", "cpu_s_per_frame_newton", "diff_1frame_m", "diff_final_m", "frames",
            "ref_frames", "err_springsim_m", "err_newton_m", "ref_floor_m", "load_start", "load_end"]
 
@@ -191,6 +195,41 @@ class SpringsimEngine:
     def state(self) -> tuple[np.ndarray, np.ndarray]:
         """Positions and velocities, float64 copies."""
         return self.s0.particle_q.copy(), self.s0.particle_qd.copy()
+
+
+class SimulateEngine:
+    """springsim's public path: each :meth:`advance` is one ``springsim.simulate`` call (driver checks included).
+
+    Parameters
+    ----------
+    model : springsim.Model
+    force_kernels : str
+        ``auto``, ``numba`` or ``numpy`` (:func:`springsim.make_integrator`).
+    """
+
+    name = "simulate"
+
+    def __init__(self, model, force_kernels: str = "auto"):
+        from springsim import make_integrator
+
+        self.model = model
+        self.integ = make_integrator("symplectic_euler", model, force_kernels=force_kernels)
+        self.q, self.qd = model.particle_q.copy(), model.particle_qd.copy()
+
+    def set_state(self, q: np.ndarray, qd: np.ndarray) -> None:
+        """Set positions and velocities [m, m/s], (N, 3)."""
+        self.q, self.qd = np.array(q, dtype=np.float64), np.array(qd, dtype=np.float64)
+
+    def advance(self, steps: int, h: float) -> None:
+        """``steps`` substeps of ``h`` seconds, one ``simulate`` call (only the last state kept)."""
+        from springsim import State, simulate
+
+        traj = simulate(self.model, self.integ, h, steps, state=State(self.q, self.qd), record=False)
+        self.q, self.qd = traj.q[-1], traj.qd[-1]
+
+    def state(self) -> tuple[np.ndarray, np.ndarray]:
+        """Positions and velocities, float64 copies."""
+        return self.q.copy(), self.qd.copy()
 
 
 class NewtonEngine:
@@ -403,7 +442,7 @@ def measure(n: int, *, repeats: int, ke: float = 1e4, kd: float = 0.0, force_ker
 
     load_start = os.getloadavg()[0]
     model = benchmark_cloth(n, stiffness=ke, damping=kd)
-    sp, nt = SpringsimEngine(model, force_kernels), NewtonEngine(model)
+    sp, nt, sd = SpringsimEngine(model, force_kernels), NewtonEngine(model), SimulateEngine(model, force_kernels)
     asm = SystemAssembler(model, make_force_terms(model))
     omega = max_frequency(asm, model.particle_q, model.particle_qd)["omega"]
     start = explicit_substeps(omega, FRAME_DT)
@@ -421,20 +460,23 @@ def measure(n: int, *, repeats: int, ke: float = 1e4, kd: float = 0.0, force_ker
         eng.advance(S, h)
     diff1 = _diff(sp, nt)
     log(f"n = {n}: one frame from rest at {S} substeps: largest particle distance springsim - newton {diff1:.3g} m")
-    for eng in (sp, nt):
+    sd.advance(S, h)  # warm-up of the public path
+    for eng in (sp, nt, sd):
         eng.set_state(model.particle_q, model.particle_qd)
-    cpu = {"springsim": [], "newton": []}
+    cpu = {"springsim": [], "newton": [], "simulate": []}
     for r in range(repeats):
-        for eng in ((sp, nt) if r % 2 == 0 else (nt, sp)):
+        for eng in ((sp, nt, sd) if r % 2 == 0 else (sd, nt, sp)):
             c = time.process_time()
             eng.advance(S, h)
             cpu[eng.name].append(time.process_time() - c)
     ratios = np.array(cpu["springsim"]) / np.array(cpu["newton"])
+    ratios_sd = np.array(cpu["simulate"]) / np.array(cpu["newton"])
     ms = {k: 1e3 * float(np.median(v)) / S for k, v in cpu.items()}
     row = dict(n=n, springs=model.spring_count, force_kernels=sp.force_kernels, substeps_springsim=limits["springsim"],
                substeps_newton=limits["newton"], substeps_equal=S, ms_per_substep_springsim=ms["springsim"],
                ms_per_substep_newton=ms["newton"], ratio=float(np.median(ratios)), ratio_min=float(ratios.min()),
-               ratio_max=float(ratios.max()),
+               ratio_max=float(ratios.max()), ms_per_substep_simulate=ms["simulate"],
+               ratio_simulate=float(np.median(ratios_sd)),
                cpu_s_per_frame_springsim=ms["springsim"] * limits["springsim"] / 1e3,
                cpu_s_per_frame_newton=ms["newton"] * limits["newton"] / 1e3, diff_1frame_m=diff1,
                diff_final_m=_diff(sp, nt), frames=repeats, load_start=load_start, load_end=os.getloadavg()[0])
@@ -444,8 +486,8 @@ def measure(n: int, *, repeats: int, ke: float = 1e4, kd: float = 0.0, force_ker
                                                                    base_substeps=2 * start, cache_dir=cache_dir,
                                                                    log=log))
     log(f"n = {n}: {ms['springsim']:.4g} ms / substep springsim, {ms['newton']:.4g} ms newton, ratio "
-        f"{row['ratio']:.3g} ({row['ratio_min']:.3g}-{row['ratio_max']:.3g}); load {load_start:.2f} -> "
-        f"{row['load_end']:.2f}")
+        f"{row['ratio']:.3g} ({row['ratio_min']:.3g}-{row['ratio_max']:.3g}); through simulate {ms['simulate']:.4g} "
+        f"ms, ratio {row['ratio_simulate']:.3g}; load {load_start:.2f} -> {row['load_end']:.2f}")
     return row
 
 
