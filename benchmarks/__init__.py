@@ -31,4 +31,5 @@ BENCHMARKS = {
     "explicit-limit": "explicit_limit",
     "stiff-regime": "stiff_regime",
     "stiff-convergence": "stiff_convergence",
+    "peer-newton": "peer_newton",
 }

@@ -3,14 +3,14 @@ and against compiled kernels, with the difference between the two paths' states 
 
 For each cloth size ``n`` the benchmark cloth (``benchmark_cloth(n)``, released at rest) runs one
 1/60 s frame of ``symplectic_euler`` through the public path (``springsim.simulate``, driver checks
-included) at the substep count a compiled semi-implicit Euler needs to stay stable (128 substeps
-per frame at n = 32, doubling with n). The same model is stepped ``--naive-steps`` times by a
-plain loop over :func:`springsim.forces.naive.naive_forces` (fancy-index gathers, ``np.add.at``
-scatters: the straightforward numpy implementation), and the two states after those substeps
-are compared (round-off only). Each size runs once per force kernel of ``--kernels``: ``numpy`` (the pure
-path) and ``numba`` (the compiled force pass of the ``accel`` extra, :mod:`springsim.forces.spring`); by
-default both when numba is installed. ``warp ms`` is NVIDIA Newton 1.8's CPU semi-implicit solver on the
-identical model, one core, as measured for the comparison (n = 32 ... 256); the target is 2x that.
+included) at ``4 n`` substeps (128 at n = 32, doubling with n: about 1.7 times the verified stability
+limit, 76 substeps at n = 32, 151 at n = 64, 302 at n = 128). The same model is stepped ``--naive-steps``
+times by a plain loop over :func:`springsim.forces.naive.naive_forces` (fancy-index gathers, ``np.add.at``
+scatters: the straightforward numpy implementation), and the two states after those substeps are compared
+(round-off only). Each size runs once per force kernel of ``--kernels``: ``numpy`` (the pure path) and
+``numba`` (the compiled force pass of the ``accel`` extra, :mod:`springsim.forces.spring`); by default both
+when numba is installed. The comparison with NVIDIA Newton's CPU solver, run live at equal substeps, is
+:mod:`benchmarks.peer_newton` (``python -m benchmarks peer-newton``).
 
     python -m benchmarks explicit-speed                 # n = 64 128 256
     python -m benchmarks explicit-speed --sizes 32 --naive-steps 20 --kernels numpy
@@ -32,17 +32,12 @@ from springsim.scene import benchmark_cloth
 
 from .common import RESULTS_DIR, markdown_table, write_csv
 
-#: Per-substep CPU time [ms] of NVIDIA Newton 1.8's SolverSemiImplicit (warp-lang CPU kernels, one core) on
-#: the identical benchmark cloth, from its per-frame time and substep count (14 ms / 128, 135 ms / 256,
-#: 862 ms / 512, 8.7 s / 1024).
-WARP_MS_PER_SUBSTEP = {32: 14.0 / 128, 64: 135.0 / 256, 128: 862.0 / 512, 256: 8700.0 / 1024}
-
 COLUMNS = ["n", "springs", "kernels", "substeps_per_frame", "ms_per_substep_wall", "ms_per_substep_cpu", "naive_ms_cpu",
-           "speedup_vs_naive", "warp_ms", "ratio_to_warp", "cpu_s_per_frame", "max_state_diff_m"]
+           "speedup_vs_naive", "cpu_s_per_frame", "max_state_diff_m"]
 
 
 def substeps_per_frame(n: int) -> int:
-    """The stable substep count of the comparison: 128 at n = 32, doubling with n (at least 32)."""
+    """The substeps of the timed frame: ``4 n`` (128 at n = 32; at least 32), above the explicit limit."""
     return max(32, 128 * n // 32)
 
 
@@ -69,11 +64,9 @@ def run_size(n: int, naive_steps: int, kernels: str = "numpy") -> dict:
     fast = springsim.simulate(model, integ, dt, k, record=False).q[-1]
     with single_blas_thread():
         slow, naive_cpu = _naive(model, dt, k)
-    warp = WARP_MS_PER_SUBSTEP.get(n)
     return dict(n=n, springs=model.spring_count, kernels=kernels, substeps_per_frame=S, ms_per_substep_wall=1e3 * wall,
                 ms_per_substep_cpu=1e3 * cpu, naive_ms_cpu=1e3 * naive_cpu, speedup_vs_naive=naive_cpu / cpu,
-                warp_ms=warp if warp is not None else float("nan"),
-                ratio_to_warp=1e3 * cpu / warp if warp else float("nan"), cpu_s_per_frame=cpu * S,
+                cpu_s_per_frame=cpu * S,
                 max_state_diff_m=float(np.abs(fast - slow).max()))
 
 
