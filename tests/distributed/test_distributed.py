@@ -23,6 +23,7 @@ from springsim.distributed import contiguous_offsets, partition
 from springsim.forces import eval_forces, make_force_terms
 
 from .scenes import scene
+from .mpi_cases import STAGE_TOLERANCE
 
 ROOT = Path(__file__).resolve().parents[2]
 TIMEOUT = 180  # s: a hang fails the test instead of the suite
@@ -214,12 +215,15 @@ def test_trajectory_matches_serial(name, integrator, dt, steps, bound, ranks, pa
     model = scene(name)
     implicit = integrator in IMPLICIT
     opts = dict(solver="direct", jacobian="spd", on_nonconvergence="ignore") if implicit else {}
+    opts.update(STAGE_TOLERANCE.get(integrator, {}))
     ref = simulate(model, make_integrator(integrator, model, **opts), dt, steps)
     assert d["q"].shape == ref.q.shape
     scale = np.abs(ref.q).max()
     assert np.abs(d["q"] - ref.q).max() <= bound * max(scale, 1.0)
     if implicit:
-        assert list(d["newton"]) == [s.newton_iterations for s in ref.stats]
+        # the same iterations, but for one more or less where a stage meets its tolerance at the round-off of the
+        # two linear solvers (KSP to 1e-10 against direct)
+        assert np.abs(np.array(d["newton"]) - [s.newton_iterations for s in ref.stats]).max() <= 1
         assert list(d["ok"]) == [s.ok for s in ref.stats]
 
 
