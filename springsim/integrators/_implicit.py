@@ -290,7 +290,11 @@ class ImplicitIntegrator(Integrator):
         levels = self.retake_halvings if self.retake else 0
         for level in range(levels + 1):
             n = 2 ** level
-            q1, v1, ok, err = self._attempt(q, v, h, stats, n, last=level == levels)
+            self.stage.stop_stalls = level < levels  # the last attempt has nothing smaller to fall back on
+            try:
+                q1, v1, ok, err = self._attempt(q, v, h, stats, n, last=level == levels)
+            finally:
+                self.stage.stop_stalls = True
             if ok:
                 break
             if level == levels:

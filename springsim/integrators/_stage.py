@@ -32,9 +32,9 @@ Three rules decide how the iteration is globalised and when it stops (``stage_so
     pairs' negative eigenvalue clamped, damping ``D >= 0``; ``mixed`` also takes each spring's tension in
     that term from the previous iterate's linearisation, :mod:`springsim.forces.spring`), so ``A >= M`` is
     positive definite by construction, ``dv`` is a descent direction and a backtracking (Armijo) line search
-    on ``E`` itself always finds a decrease. Two refinements for nonconvex stages: where a full step lowers
-    ``E`` by more than its quadratic model allows (negative curvature the projection removed) the step is
-    doubled while ``E`` keeps falling; and where full steps stall (three in a row each reducing ``|grad E|``
+    on ``E`` itself always finds a decrease. Two refinements for nonconvex stages: where a full step from a solve to the
+    solver's own tolerance lowers ``E`` by more than its quadratic model allows, beyond ``E``'s round-off (negative
+    curvature the projection removed), the step is doubled while ``E`` keeps falling by more than its round-off; and where full steps stall (three in a row each reducing ``|grad E|``
     by less than 30 %: the projection of a slack cloth's compressed springs is far stiffer than ``E``), the
     stage continues with ``E``'s exact Hessian (the ``symmetric`` mode, the damping frozen), positive definite
     near a minimum, for as long as it gives descent directions and the solver takes indefinite matrices (on
@@ -61,6 +61,13 @@ Three rules decide how the iteration is globalised and when it stops (``stage_so
     reproduced.
 
 Linearized implicit Euler is one plain iteration of any of them (``converge=False``).
+
+Stalls. Where the solver cannot take ``E``'s exact Hessian (CG-type solvers), a ``minimize`` stage that has not
+halved ``|grad E|`` in its last 10 iterations stops unconverged (a slack, buckling cloth whose projected Hessian
+is far from ``E``'s):
+its step is then retaken in substeps (:mod:`springsim.integrators._implicit`), whose stages are closer to convex,
+instead of spending the rest of ``newton_maxiter`` on it. The last retake, with nothing smaller to fall back on,
+runs to ``newton_maxiter``.
 
 Curved steps. On very stiff springs a full Newton step that turns a spring moves its end along the tangent,
 and the spring's length grows by ``|dd_perp|^2 / (2 l)`` where the linearisation saw none: ``E`` rises by
@@ -119,6 +126,9 @@ STAGE_SOLVERS = ("minimize", "residual", "pa2")
 FORCING_RULES = ("fixed", "eisenstat-walker")
 #: Armijo's sufficient-decrease constant.
 _ARMIJO = 1e-4
+#: A minimisation stage that has not halved its gradient norm in this many iterations stops (module docstring,
+#: "Stalls").
+_STALL_WINDOW = 10
 #: A minimisation stage's linear solve need not leave a residual below this share of the stopping tolerance
 #: (module docstring, "Linear solves"), nor be looser than ``_SOLVE_LOOSEST``.
 _SOLVE_SHARE, _SOLVE_LOOSEST = 0.5, 0.1
@@ -335,6 +345,9 @@ class StageSolver:
         self._warm: np.ndarray | None = None
         self._failed: list[str] = []
         self.trace = None
+        #: Whether a stalled ``minimize`` stage stops early (module docstring, "Stalls"); the integrators turn it
+        #: off in the last substep retake, which has nothing smaller to fall back on.
+        self.stop_stalls = True
 
     def reset(self) -> None:
         """Forget the warm start of the first linear solve."""
@@ -465,7 +478,7 @@ class StageSolver:
         forcing = StageForcing(o.forcing, eta_max=o.forcing_max, floor=sysm.linear_rtol)
         converged, stagnated, step, alpha = gnorm <= tol, False, 0.0, 1.0
         it = flat = 0
-        slow, exact = 0, False
+        slow, exact, stalled, history = 0, False, False, [gnorm]
         exact_ok = sysm.default_jacobian() == "exact"  # the solver takes indefinite matrices
         while not converged and it < maxiter and np.isfinite(gnorm):
             R = sysm.gather(grad) * (-c)
@@ -513,8 +526,10 @@ class StageSolver:
             while True:
                 v_try, q_try = self._step_to(v, dv, alpha, q_hat, c)
                 trial = self._potential(q_try, v_try, v_hat, c, geometry, f)
+                decrease = E + _ARMIJO * alpha * slope
                 if (trial[2] <= (1.0 - _ARMIJO * alpha) * gnorm if by_gradient
-                        else trial[0] <= E + _ARMIJO * alpha * slope + noise):
+                        # a step E accepts only within its round-off must lower the gradient norm too
+                        else trial[0] <= decrease or (trial[0] <= decrease + noise and trial[2] < gnorm)):
                     break
                 if alpha == 1.0 and not by_gradient and np.isfinite(trial[0]):
                     corrected = self._corrected(A, rtol, v, dv, q_hat, v_hat, c, geometry, stats)
@@ -528,10 +543,11 @@ class StageSolver:
                     stagnated = True
                     break
                 alpha *= 0.5
-            if alpha == 1.0 and not (by_gradient or curved) and trial[0] - E < 0.9 * slope:
+            if alpha == 1.0 and not (by_gradient or curved or by_need) and trial[0] - E + noise < 0.9 * slope:
                 # E fell by more than its quadratic model allows (half the slope): negative curvature the
                 # projection removed (a buckling cloth); follow it with longer steps while E keeps falling
-                v_try, q_try, trial, alpha = self._expand(v, dv, q_hat, v_hat, c, geometry, f, trial, v_try, q_try)
+                v_try, q_try, trial, alpha = self._expand(v, dv, q_hat, v_hat, c, geometry, f, trial, v_try, q_try,
+                                                          noise)
                 stats.extra["longer_steps"] = stats.extra.get("longer_steps", 0) + (alpha > 1.0)
             stats.extra["min_line_search_step"] = min(alpha, stats.extra.get("min_line_search_step", 1.0))
             if stagnated and not (trial[2] <= gnorm if by_gradient else trial[0] <= E + noise):
@@ -548,10 +564,15 @@ class StageSolver:
             stagnated = False
             if self.trace is not None:
                 self.trace.append((it, alpha, gnorm, tol, E))
+            history.append(gnorm)
             if gnorm <= tol and (by_need or forcing.certified(res.residual)):
                 converged = True
             elif flat >= 2:
                 stagnated = True
+                break
+            elif (self.stop_stalls and not exact_ok and len(history) > _STALL_WINDOW
+                  and min(history[-_STALL_WINDOW:]) > 0.5 * history[-_STALL_WINDOW - 1]):
+                stalled = True  # ("Stalls") the step is retaken in substeps, where the stages are closer to convex
                 break
         if not converged and stagnated and gnorm <= 1e3 * tol:
             converged = True  # round-off leaves no decrease: the gradient is as small as it can be made
@@ -562,8 +583,10 @@ class StageSolver:
         stats.residual_ratio = gnorm / scale if scale > 0 else 0.0
         stats.extra["gradient_norm"] = gnorm
         stats.extra["gradient_tol"] = tol
-        why = (f"the stage did not converge in {maxiter} Newton iterations: |grad E| {gnorm:.2e} N, tolerance "
-               f"{tol:.2e} N ({'line search stagnated' if stagnated else 'iteration limit'})")
+        reason = (f"no halving of |grad E| in the last {_STALL_WINDOW} iterations" if stalled
+                  else "line search stagnated" if stagnated else "iteration limit")
+        why = (f"the stage did not converge in {it} Newton iterations: |grad E| {gnorm:.2e} N, tolerance "
+               f"{tol:.2e} N ({reason})")
         return q, v, converged and bool(np.isfinite(gnorm)), why
 
     def _corrected(self, A, rtol, v, dv, q_hat, v_hat, c, geometry, stats):
@@ -590,14 +613,14 @@ class StageSolver:
         f_c = np.empty_like(v)
         return dv_c, v_c, q_c, self._potential(q_c, v_c, v_hat, c, geometry, f_c), f_c
 
-    def _expand(self, v, dv, q_hat, v_hat, c, geometry, f, trial, v_try, q_try, most: int = 4):
+    def _expand(self, v, dv, q_hat, v_hat, c, geometry, f, trial, v_try, q_try, noise, most: int = 4):
         """Doubling the accepted full step up to ``2**most`` times while ``E`` keeps falling: the best trial."""
         alpha = 1.0
         for _ in range(most):
             v2, q2 = self._step_to(v, dv, 2.0 * alpha, q_hat, c)
             f2 = np.empty_like(f)
             t2 = self._potential(q2, v2, v_hat, c, geometry, f2)
-            if not t2[0] < trial[0]:
+            if not t2[0] < trial[0] - noise:
                 break
             alpha, v_try, q_try, trial = 2.0 * alpha, v2, q2, t2
             f[...] = f2
