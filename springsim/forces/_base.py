@@ -238,6 +238,7 @@ class ForceTerm(ABC):
         return data
 
     @classmethod
+    @abstractmethod
     def naive_force(cls, model, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
         """The term's force (N, 3) [N] on every particle of ``model`` (fixed ones included), written straight
         from the model's arrays with plain gathers and ``np.add.at`` scatters, sharing no code with
@@ -255,7 +256,6 @@ class ForceTerm(ABC):
         ndarray, shape (N, 3)
             The term's force [N] (zero where the model has nothing of it).
         """
-        raise NotImplementedError(f"force term {cls.__name__} has no naive_force (the reference of its eval_force)")
 
     @abstractmethod
     def eval_force(self, q: np.ndarray, qd: np.ndarray, f_out: np.ndarray, *,
