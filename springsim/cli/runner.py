@@ -18,6 +18,7 @@ import warnings
 from pathlib import Path
 
 from ..errors import EnergyGrowthWarning, SceneError, SimulationInterrupted, SpringsimError, SpringsimWarning
+from ..forces._data import data_terms, term_group
 from ..options import BACKENDS, SolverConfig
 from .session import _stopped_by, interrupt_status, signals_deferred
 
@@ -231,8 +232,8 @@ def _model_rows(scene) -> list[tuple[str, str]]:
     return [
         ("scene", f"{scene.source} ({scene.name})"),
         ("particles", f"{m.particle_count} ({m.free_count} free, {m.particle_count - m.free_count} fixed)"),
-        ("springs", str(m.spring_count)),
-        ("gravitational pairs", str(m.gravitational_count)),
+        *((cls.pair_label or term_group(name, cls), str(getattr(m, f"{name}_count")))
+          for name, cls in data_terms() if any(spec.per == "pair" for spec in cls.data)),
         ("dofs", str(m.dof_count)),
     ]
 

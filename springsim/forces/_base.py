@@ -177,6 +177,9 @@ class ForceTerm(ABC):
     #: The YAML key of the term's pair list (or of its per-model mapping), and the item path of its error
     #: messages (``springs[3].stiffness``); default :attr:`name`.
     yaml_key: ClassVar[str | None] = None
+    #: What the term's pairs are called in run summaries (plural: ``"gravitational pairs"``); default its
+    #: :attr:`yaml_key` (``"springs"``).
+    pair_label: ClassVar[str | None] = None
 
     #: Layouts of dF/dq and dF/dqd, or None where the term does not depend on q / qd.
     layout_q: BlockLayout | None = None

@@ -96,6 +96,7 @@ class ForceGravitational(ForceTerm):
     pairwise = True
     conservative = True
     yaml_key = "gravitational"
+    pair_label = "gravitational pairs"
     data = (
         ArraySpec("G", per="pair", unit="N m^2/kg^2", lo=0.0, required=True, sample=(0.5, 2.0),
                   doc="gravitational constant of the pair"),

@@ -152,6 +152,14 @@ def test_yaml_loader_reads_the_terms_keys(registered):
     assert repr(m).endswith("tethers=2)")
 
 
+def test_run_summary_counts_the_terms_pairs(registered):
+    """The run summary lists every term with a pair list, by its label (default its YAML key)."""
+    from springsim.cli.runner import _model_rows
+
+    rows = dict(_model_rows(load_scene(SCENE)))
+    assert rows["tethers"] == "2" and rows["springs"] == "1" and rows["gravitational pairs"] == "0"
+
+
 @pytest.mark.parametrize("edit, message", [
     (("k: 3}", "k: -3}"), "tethers[0].k: must be >= 0, got -3"),
     (("k: 3}", "k: .nan}"), "tethers[0].k: must be finite, got nan"),
