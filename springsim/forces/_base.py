@@ -396,8 +396,8 @@ class ForceTerm(ABC):
 
     def jacobian_symmetric(self, mode: str, *, frozen_damping: bool = False) -> bool:
         """Whether this term's contribution ``-a dF/dq - b dF/dqd`` to the system matrix is symmetric
-        in Jacobian ``mode`` (every ``a``, ``b``; ``frozen_damping``: with a ``damping_geometry``). Terms with a non-symmetric derivative override it;
-        the assembler declares its matrix symmetric only when every term is.
+        in Jacobian ``mode`` (every ``a``, ``b``; ``frozen_damping``: with a ``damping_geometry``). Terms with a
+        non-symmetric derivative override it; the assembler declares its matrix symmetric only when every term is.
 
         Parameters
         ----------

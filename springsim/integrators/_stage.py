@@ -32,10 +32,11 @@ Three rules decide how the iteration is globalised and when it stops (``stage_so
     pairs' negative eigenvalue clamped, damping ``D >= 0``; ``mixed`` also takes each spring's tension in
     that term from the previous iterate's linearisation, :mod:`springsim.forces.spring`), so ``A >= M`` is
     positive definite by construction, ``dv`` is a descent direction and a backtracking (Armijo) line search
-    on ``E`` itself always finds a decrease. Two refinements for nonconvex stages: where a full step from a solve to the
-    solver's own tolerance lowers ``E`` by more than its quadratic model allows, beyond ``E``'s round-off (negative
-    curvature the projection removed), the step is doubled while ``E`` keeps falling by more than its round-off; and where full steps stall (three in a row each reducing ``|grad E|``
-    by less than 30 %: the projection of a slack cloth's compressed springs is far stiffer than ``E``), the
+    on ``E`` itself always finds a decrease. Two refinements for nonconvex stages: where a full step from a
+    solve to the solver's own tolerance lowers ``E`` by more than its quadratic model allows, beyond ``E``'s
+    round-off (negative curvature the projection removed), the step is doubled while ``E`` keeps falling by
+    more than its round-off; and where full steps stall (three in a row each reducing ``|grad E|`` by less
+    than 30 %: the projection of a slack cloth's compressed springs is far stiffer than ``E``), the
     stage continues with ``E``'s exact Hessian (the ``symmetric`` mode, the damping frozen), positive definite
     near a minimum, for as long as it gives descent directions and the solver takes indefinite matrices (on
     the README's builder cloth, 32 x 32 held at two corners: implicit Euler 144 -> 28 iterations per step). A
@@ -94,15 +95,15 @@ Newton steps (Dembo, Eisenstat and Steihaug 1982): each solve of ``A dv = R`` st
 ``rtol``. An update from a loose solve can pass a stopping rule while the iterate is not converged, so it is
 confirmed by one more solve to ``rtol`` (:class:`StageForcing`).
 
-Linear solves. In a ``minimize`` stage a solve need not be more accurate than the stopping rule needs: a
-Newton step whose linear residual is ``eta |R|`` leaves a gradient of about ``eta |grad E|`` plus the
-quadratic remainder, so the solve from an iterate with ``|grad E| = g`` stops at the relative residual
-``max(rtol, min(0.5 tol / g, 0.1))`` (``tol`` the stage's stopping tolerance, ``rtol`` the system's): the
-solver's own tolerance while the gradient is far above ``tol``, looser in the last iterations (the
-gradient at the new iterate, evaluated exactly, still decides). A solve that missed its criterion is still a usable search direction (inexact Newton) in a
-stage whose own stopping rule then certifies the result (counted in
-``StepStats.extra["recovered_linear_failures"]``); in a stage that does not converge, and in linearized
-implicit Euler, it fails the step (``StepStats.linear_failures``). A non-finite solution ends the step with
+Linear solves. In a ``minimize`` stage a solve need not be more accurate than the stopping rule needs: a Newton
+step whose linear residual is ``eta |R|`` leaves a gradient of about ``eta |grad E|`` plus the quadratic
+remainder, so the solve from an iterate with ``|grad E| = g`` stops at the relative residual ``max(rtol, min(0.5
+tol / g, 0.1))`` (``tol`` the stage's stopping tolerance, ``rtol`` the system's): the solver's own tolerance
+while the gradient is far above ``tol``, looser in the last iterations (the gradient at the new iterate,
+evaluated exactly, still decides). A solve that missed its criterion is still a usable search direction (inexact
+Newton) in a stage whose own stopping rule then certifies the result (counted in
+``StepStats.extra["recovered_linear_failures"]``); in a stage that does not converge, and in linearized implicit
+Euler, it fails the step (``StepStats.linear_failures``). A non-finite solution ends the step with
 :class:`~springsim.errors.SolverError`.
 """
 
@@ -532,7 +533,7 @@ class StageSolver:
                         else trial[0] <= decrease or (trial[0] <= decrease + noise and trial[2] < gnorm)):
                     break
                 if alpha == 1.0 and not by_gradient and np.isfinite(trial[0]):
-                    corrected = self._corrected(A, rtol, v, dv, q_hat, v_hat, c, geometry, stats)
+                    corrected = self._corrected(A, rtol, q, q_try, v, dv, q_hat, v_hat, c, geometry, stats)
                     if corrected is not None and corrected[3][0] <= E + _ARMIJO * slope + noise:
                         dv, v_try, q_try, trial, f_c = corrected
                         f[...] = f_c
@@ -589,14 +590,12 @@ class StageSolver:
                f"{tol:.2e} N ({reason})")
         return q, v, converged and bool(np.isfinite(gnorm)), why
 
-    def _corrected(self, A, rtol, v, dv, q_hat, v_hat, c, geometry, stats):
-        """The second-order correction of a rejected full step (module docstring, "Curved steps"): ``(dv', v',
-        q', trial', f')`` for ``dv' = dv + A^-1 (c F_r)``, or None where no term has curved lengths or the solve
-        gave no direction."""
+    def _corrected(self, A, rtol, q, q_full, v, dv, q_hat, v_hat, c, geometry, stats):
+        """The second-order correction of the rejected full step from ``q`` to ``q_full`` (module docstring,
+        "Curved steps"): ``(dv', v', q', trial', f')`` for ``dv' = dv + A^-1 (c F_r)``, or None where no term has
+        curved lengths or the solve gave no direction."""
         sysm = self.system
-        v1 = v.copy()
-        sysm.scatter_add(v1, dv, 1.0)
-        remainder = sysm.curvature_forces(q_hat + c * v, q_hat + c * v1, np.empty_like(v))
+        remainder = sysm.curvature_forces(q, q_full, np.empty_like(v))
         if remainder is None:
             return None
         remainder[sysm.fixed] = 0.0
