@@ -598,7 +598,6 @@ class StageSolver:
         remainder = sysm.curvature_forces(q, q_full, np.empty_like(v))
         if remainder is None:
             return None
-        remainder[sysm.fixed] = 0.0
         failed = list(self._failed)
         try:
             res = self._linear_solve(A, sysm.gather(remainder) * c, stats, first=False, rtol=rtol)
