@@ -17,6 +17,9 @@ from typing import TYPE_CHECKING
 from .errors import (ConvergenceWarning, FallbackWarning, SceneError, SceneTypeError, SimulationError,
                      SimulationInterrupted, SolverError, SpringsimError, SpringsimWarning)
 from . import _accel  # noqa: F401  (sets NUMBA_CACHE_DIR to a user cache before numba is imported)
+from . import _compat
+
+_compat.install()  # the former paths of moved modules (``springsim.driver``, ...) keep importing, with a warning
 
 __version__ = "0.1.0"
 
@@ -44,6 +47,8 @@ __all__ = ["ModelBuilder", "Model", "State", "Trajectory", "simulate", "simulate
 def __getattr__(name: str):
     module = _LAZY.get(name)
     if module is None:
+        if f"{__name__}.{name}" in _compat.MOVED:  # a moved module asked for as an attribute: its former path
+            return importlib.import_module(f"{__name__}.{name}")
         raise AttributeError(f"module 'springsim' has no attribute {name!r}")
     value = getattr(importlib.import_module(module, __name__), name)
     globals()[name] = value
