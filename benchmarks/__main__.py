@@ -9,8 +9,8 @@ from . import BENCHMARKS
 
 
 def main(argv: list[str] | None = None) -> int:
-    if argv is None:  # run as a program: the command line's allocator policy (springsim._alloc)
-        from springsim._alloc import retain_freed_memory
+    if argv is None:  # run as a program: the command line's allocator policy (springsim._runtime.alloc)
+        from springsim._runtime.alloc import retain_freed_memory
 
         retain_freed_memory()
     argv = sys.argv[1:] if argv is None else list(argv)

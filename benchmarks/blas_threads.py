@@ -1,7 +1,7 @@
 """BLAS thread policy: time per step with springsim's one-thread policy against the BLAS default, and the
 difference between the two trajectories (the error of the comparison: round-off only).
 
-Runs the benchmark cloth with one linear solver, first with the policy of :mod:`springsim._threads`
+Runs the benchmark cloth with one linear solver, first with the policy of :mod:`springsim._runtime.threads`
 (one BLAS thread in the stepping loop; needs the ``threads`` extra), then with it switched off (the
 BLAS library's default threads), optionally with ``--busy`` processes spinning on the other cores as
 on a shared machine. Prints wall and CPU time per step and the largest position difference [m].
@@ -19,7 +19,7 @@ import time
 import numpy as np
 
 import springsim
-from springsim import _threads
+from springsim._runtime import threads as _threads
 from springsim.scene import BENCHMARK_DT, benchmark_cloth
 
 

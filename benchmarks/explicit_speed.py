@@ -25,8 +25,8 @@ import time
 import numpy as np
 
 import springsim
-from springsim._accel import numba_available
-from springsim._threads import single_blas_thread
+from springsim._runtime.accel import numba_available
+from springsim._runtime.threads import single_blas_thread
 from springsim.forces.naive import naive_forces
 from springsim.scene import benchmark_cloth
 

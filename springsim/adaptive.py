@@ -40,7 +40,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ._threads import single_blas_thread
+from ._runtime.threads import single_blas_thread
 from .driver import RunRecorder, Trajectory
 from .errors import SceneError, SimulationError, SpringsimError
 from .integrators import INTEGRATORS, Integrator, StepStats, make_integrator

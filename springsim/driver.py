@@ -16,7 +16,7 @@ guarantees:
   and the first reason, and in :meth:`Trajectory.summary`. Linear-solver fallbacks are
   reported the same way with a :class:`~springsim.errors.FallbackWarning`.
 * **Threads.** The stepping loop runs with one BLAS thread
-  (:func:`springsim._threads.single_blas_thread`; the optional ``threads`` extra).
+  (:func:`springsim._runtime.threads.single_blas_thread`; the optional ``threads`` extra).
 * **Interrupts.** Ctrl-C raises :class:`~springsim.errors.SimulationInterrupted` (a
   ``KeyboardInterrupt``) with the frames so far.
 
@@ -41,7 +41,7 @@ from .errors import (ConvergenceWarning, EnergyGrowthWarning, FallbackWarning, S
                      SpringsimError)
 from .integrators import Integrator, StepStats
 from .model import Model, State
-from ._threads import single_blas_thread
+from ._runtime.threads import single_blas_thread
 from .options import MAX_STEPS, describe_int
 from .progress import as_progress
 

@@ -94,7 +94,7 @@ def main(argv: list[str] | None = None) -> int:
     """Parse ``argv`` (default ``sys.argv[1:]``), run the command, return the exit status.
 
     Run as the program (``argv`` None), it first applies the allocator policy of
-    :func:`springsim._alloc.retain_freed_memory` (off with ``SPRINGSIM_RETAIN_MEMORY=0``).
+    :func:`springsim._runtime.alloc.retain_freed_memory` (off with ``SPRINGSIM_RETAIN_MEMORY=0``).
     """
     try:
         parser = build_parser()
@@ -104,8 +104,8 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:  # during start-up (the commands' imports)
         print("springsim: interrupted", file=sys.stderr)
         return 130
-    if argv is None:  # the command line owns the process: keep freed memory for reuse (springsim._alloc)
-        from .._alloc import retain_freed_memory
+    if argv is None:  # the command line owns the process: keep freed memory for reuse (springsim._runtime.alloc)
+        from .._runtime.alloc import retain_freed_memory
 
         retain_freed_memory()
     scene = getattr(args, "scene", None)

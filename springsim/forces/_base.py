@@ -192,7 +192,7 @@ class ForceTerm(ABC):
 
         With ``skip_fixed`` (default), items acting only between fixed particles are
         dropped: they never move anything. ``kernels`` (``"auto"``, ``"numba"`` or ``"numpy"``)
-        chooses a compiled force evaluation where the term has one (:mod:`springsim._accel`); terms
+        chooses a compiled force evaluation where the term has one (:mod:`springsim._runtime.accel`); terms
         without one ignore it.
 
         Parameters

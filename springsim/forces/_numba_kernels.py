@@ -1,4 +1,4 @@
-"""numba kernels of the force terms (imported only when ``kernels="numba"``, see :mod:`springsim._accel`).
+"""numba kernels of the force terms (imported only when ``kernels="numba"``, see :mod:`springsim._runtime.accel`).
 
 ``cache=True`` keeps the machine code on disk between processes; ``error_model="numpy"`` gives IEEE results
 (inf, NaN) where Python would raise, as the numpy path does.

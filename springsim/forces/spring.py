@@ -60,7 +60,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._accel import resolve
+from .._runtime.accel import resolve
 from ._base import (PROJECTED_MODES, BlockLayout, Blocks, ForceTerm, PairIncidence, active_pairs, outer,
                     pair_geometry, scratch, step_pairs)
 from ._data import ArraySpec

@@ -1,5 +1,5 @@
 """numba kernels of the explicit integrators (loaded only when the force pass is compiled, see
-:mod:`springsim._accel`).
+:mod:`springsim._runtime.accel`).
 
 Each kernel performs the same floating-point operations in the same order as its numpy twin (no fused
 multiply-add: numba contracts only under ``fastmath``), so the two give the same states (the tests compare

@@ -1,6 +1,6 @@
 """Symplectic (semi-implicit) Euler: ``qd1 = qd + h M^-1 F(q, qd)``, ``q1 = q + h qd1``. Order 1.
 
-When the spring force pass is compiled (``force_kernels``, :mod:`springsim._accel`), the update after the
+When the spring force pass is compiled (``force_kernels``, :mod:`springsim._runtime.accel`), the update after the
 force evaluation is one compiled pass as well
 (:func:`springsim.integrators._numba_kernels.symplectic_euler_update`), with the same operations in the
 same order as the numpy path (the tests compare the two).

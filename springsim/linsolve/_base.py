@@ -32,7 +32,7 @@ from typing import ClassVar
 import numpy as np
 import scipy.sparse as sp
 
-from .._threads import single_blas_thread
+from .._runtime.threads import single_blas_thread
 
 __all__ = ["LinearSolver", "LinearSolveResult", "as_system_matrix", "relative_residual", "backward_error",
            "inf_norm", "BACKWARD_TOL", "DEFAULT_RTOL"]
@@ -262,7 +262,7 @@ class LinearSolver(ABC):
         ``rtol`` replaces :attr:`rtol` for this solve (iterative solvers; e.g. the forcing term of an
         inexact Newton iteration): it is passed down as an argument, the solver's own :attr:`rtol` is never
         changed; direct solvers solve to round-off whatever it is.
-        Runs with one BLAS thread (:func:`springsim._threads.single_blas_thread`).
+        Runs with one BLAS thread (:func:`springsim._runtime.threads.single_blas_thread`).
 
         Parameters
         ----------

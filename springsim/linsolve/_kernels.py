@@ -34,7 +34,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from .. import _accel
+from .._runtime import accel as _accel
 
 __all__ = ["KERNELS", "BsrOperator", "BsrProduct", "CompiledVCycle", "block_diagonal_inverse",
            "block_gauss_seidel_backward", "block_gauss_seidel_forward", "bsr_block_diagonal", "bsr_matmat",

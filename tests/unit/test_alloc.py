@@ -1,4 +1,4 @@
-"""The command line's allocator policy (springsim._alloc): applied in a fresh process, switchable off."""
+"""The command line's allocator policy (springsim._runtime.alloc): applied in a fresh process, switchable off."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import sys
 import pytest
 
 GLIBC = sys.platform.startswith("linux") and platform.libc_ver()[0] == "glibc"
-CODE = "from springsim._alloc import retain_freed_memory as r; import numpy as np; print(r(), r()); " \
+CODE = "from springsim._runtime.alloc import retain_freed_memory as r; import numpy as np; print(r(), r()); " \
        "a = np.ones(50_000_000); del a; b = np.ones(50_000_000); print(float(b.sum()))"
 
 

@@ -171,7 +171,7 @@ def test_blas_threads_benchmark_tiny(capsys):
     """benchmarks/blas_threads.py at a tiny size prints its table; both policies give the same trajectory; the policy
     is restored afterwards."""
     pytest.importorskip("threadpoolctl")
-    from springsim import _threads
+    from springsim._runtime import threads as _threads
 
     mod = importlib.import_module("benchmarks.blas_threads")
     policy = _threads.single_blas_thread

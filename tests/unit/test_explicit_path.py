@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 from helpers import random_scene
 
-from springsim import ModelBuilder, _accel, make_integrator, simulate
+from springsim import ModelBuilder, make_integrator, simulate
+from springsim._runtime import accel as _accel
 from springsim.forces import ForceSpring, eval_forces, make_force_terms
 from springsim.forces._base import PairIncidence
 from springsim.forces.naive import naive_forces

@@ -221,7 +221,7 @@ def test_parse_candidate(fc):
 
 def test_force_kernels_reach_the_runs(fc):
     """``--force-kernels`` reaches symplectic Euler and the implicit candidates; the summary names what it used."""
-    from springsim._accel import numba_available
+    from springsim._runtime.accel import numba_available
 
     model = fc.cloth(6)
     assert fc.force_kernels_used(model, "auto") == fc.force_kernels_used(model, "numpy") == "numpy"

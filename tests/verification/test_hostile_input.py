@@ -457,7 +457,7 @@ def test_solvers_are_deterministic_and_leave_global_random_state_alone(name):
 def test_solves_run_with_one_blas_thread():
     """Inside a solve every loaded BLAS runs one thread; the caller's setting is restored afterwards."""
     threadpoolctl = pytest.importorskip("threadpoolctl")  # a test extra: CI always has it
-    from springsim import _threads
+    from springsim._runtime import threads as _threads
 
     seen = []
     solver = make_linear_solver("dense")
@@ -478,7 +478,7 @@ def test_solves_run_with_one_blas_thread():
 
 def test_thread_policy_is_a_no_op_without_threadpoolctl(monkeypatch):
     """Without threadpoolctl (an optional extra) solves work the same, with the environment's thread setting."""
-    from springsim import _threads
+    from springsim._runtime import threads as _threads
 
     monkeypatch.setitem(sys.modules, "threadpoolctl", None)
     monkeypatch.setattr(_threads, "_controller", None)
