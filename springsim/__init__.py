@@ -25,7 +25,7 @@ __version__ = "0.1.0"
 
 #: Lazily loaded names -> the module that defines them.
 _LAZY = {
-    "ModelBuilder": ".builder",
+    "ModelBuilder": ".model.builder",
     "Model": ".model",
     "State": ".model",
     "Trajectory": ".driver",
@@ -61,7 +61,7 @@ def __dir__():
 
 if TYPE_CHECKING:  # pragma: no cover
     from .adaptive import simulate_adaptive
-    from .builder import ModelBuilder
+    from .model.builder import ModelBuilder
     from .driver import Trajectory, simulate
     from .integrators import INTEGRATORS, make_integrator
     from .linsolve import LINEAR_SOLVERS, make_linear_solver

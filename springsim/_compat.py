@@ -19,7 +19,10 @@ import warnings
 __all__ = ["MOVED", "MovedModuleFinder", "install"]
 
 #: Former module name -> the module's name now.
-MOVED: dict[str, str] = {}
+MOVED: dict[str, str] = {
+    "springsim.builder": "springsim.model.builder",
+    "springsim.topology": "springsim.model.topology",
+}
 
 # Frames that an import passes through on its way to the loader: the import system's, importlib.import_module's,
 # and springsim/__init__.py's (its __getattr__ imports a former module asked for as an attribute).

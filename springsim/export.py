@@ -37,8 +37,8 @@ import numpy as np
 
 from ._atomic import write_atomic
 from .errors import SpringsimError
-from .topology import cloth_quads as grid_quads
-from .topology import springs_outside_grids
+from .model.topology import cloth_quads as grid_quads
+from .model.topology import springs_outside_grids
 
 __all__ = ["EXPORT_FORMATS", "ExportFormat", "cloth_quads", "export_trajectory", "require_meshio"]
 

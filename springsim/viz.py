@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import SpringsimError
-from .topology import springs_outside_grids
+from .model.topology import springs_outside_grids
 
 __all__ = ["plot_dof", "render_frame", "render_gif", "require_matplotlib", "run_title", "springs_outside_grids",
            "DOF_NAMES"]

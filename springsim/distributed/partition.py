@@ -55,7 +55,7 @@ def contiguous_offsets(count: int, size: int) -> np.ndarray:
 
 def pair_families(model: Model) -> dict[str, list[str]]:
     """The model's pair lists: ``{term: [array, ...]}`` for every term with a pair list in
-    :attr:`~springsim.model.Model.terms`, its per-pair arrays in declared order after ``"indices"``. With the
+    :attr:`~springsim.model.model.Model.terms`, its per-pair arrays in declared order after ``"indices"``. With the
     built-in terms: ``spring`` and ``gravitational``."""
     specs = dict(data_terms())
     out = {}

@@ -170,7 +170,7 @@ class ForceTerm(ABC):
     external: ClassVar[bool] = False
 
     #: The term's data (:class:`~springsim.forces.ArraySpec` s): per-particle, per-pair or per-model arrays that
-    #: the model holds for it (:attr:`springsim.model.Model.terms`), and the builder, the YAML loader, the
+    #: the model holds for it (:attr:`springsim.model.model.Model.terms`), and the builder, the YAML loader, the
     #: partitioner and the fingerprint handle from these declarations. A term with per-pair arrays has a pair
     #: list, ``model.<name>_indices``.
     data: ClassVar[tuple[ArraySpec, ...]] = ()
@@ -226,7 +226,7 @@ class ForceTerm(ABC):
         particle_mass : ndarray, shape (N,)
             Masses [kg].
         pair_epsilon : float
-            The model's :attr:`~springsim.model.Model.pair_epsilon` [m].
+            The model's :attr:`~springsim.model.model.Model.pair_epsilon` [m].
 
         Returns
         -------

@@ -6,17 +6,17 @@ A spec says what one array is: per particle (one value per particle, ``model.par
 (one value, ``model.<term>_<name>``); its shape per item, unit, bounds, YAML key and default. From the specs
 of the registered terms (:data:`springsim.forces.FORCE_TERMS`):
 
-* the :class:`~springsim.model.Model` holds each term's arrays in :attr:`~springsim.model.Model.terms` and
+* the :class:`~springsim.model.model.Model` holds each term's arrays in :attr:`~springsim.model.model.Model.terms` and
   exposes them under the names above;
-* :class:`~springsim.builder.ModelBuilder` takes them (:meth:`~springsim.builder.ModelBuilder.add_pairs`,
-  keywords of :meth:`~springsim.builder.ModelBuilder.add_particles`,
-  :meth:`~springsim.builder.ModelBuilder.set_term_data`) and validates them with one-line messages naming
+* :class:`~springsim.model.builder.ModelBuilder` takes them (:meth:`~springsim.model.builder.ModelBuilder.add_pairs`,
+  keywords of :meth:`~springsim.model.builder.ModelBuilder.add_particles`,
+  :meth:`~springsim.model.builder.ModelBuilder.set_term_data`) and validates them with one-line messages naming
   the item (``springs[12].stiffness: must be >= 0, got -3``);
 * the YAML loader reads a pair term's list under the term's :attr:`~springsim.forces.ForceTerm.yaml_key`,
   per-particle arrays as keys of ``particles[k]`` and per-model arrays as keys of a mapping under the term's
   YAML key;
 * the partitioner slices per-particle arrays by particle and per-pair arrays by pair
-  (:mod:`springsim.distributed.partition`), and :meth:`~springsim.model.Model.fingerprint` hashes them.
+  (:mod:`springsim.distributed.partition`), and :meth:`~springsim.model.model.Model.fingerprint` hashes them.
 """
 
 from __future__ import annotations
@@ -72,7 +72,7 @@ class ArraySpec:
         A typical range of values ``(lo, hi)``, for random test scenes; default from the bounds.
     dissipative : bool
         The array is a dissipation coefficient (a damping, a drag): a model whose values are not all zero
-        dissipates energy (:meth:`springsim.model.Model.dissipates`).
+        dissipates energy (:meth:`springsim.model.model.Model.dissipates`).
     doc : str
         One line of documentation.
     """
@@ -302,7 +302,7 @@ def term_attributes(registry: dict | None = None, *, reserved=frozenset()) -> di
         Name -> term class; default :data:`springsim.forces.FORCE_TERMS` (then the table is cached until the
         registry or ``reserved`` changes).
     reserved : set of str
-        Names no term may claim (the :class:`~springsim.model.Model`'s own fields, properties and methods).
+        Names no term may claim (the :class:`~springsim.model.model.Model`'s own fields, properties and methods).
 
     Returns
     -------

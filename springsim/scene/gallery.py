@@ -6,7 +6,7 @@
 
 from __future__ import annotations
 
-from ..builder import ModelBuilder, unalias
+from ..model.builder import ModelBuilder, unalias
 
 __all__ = ["benchmark_cloth", "benchmark_cloth_grid", "accuracy_cloth", "BENCHMARK_DT"]
 
@@ -24,7 +24,8 @@ def benchmark_cloth_grid(n: int, *, stiffness: float | None = None, damping: flo
     ``benchmark_cloth:`` block: a 1 m square of total mass ``total_mass`` [kg]; structural and shear
     springs ``stiffness`` [N/m] (default 1e4; shear ``stiffness_shear`` if given), bending springs
     ``stiffness_bend`` (default 100), all with damping ``damping`` [N s/m] (default 0); ``pin`` as for
-    the grid. ``ke``, ``kd``, ``ke_shear``, ``ke_bend`` are aliases (:data:`springsim.builder.COEFFICIENT_ALIASES`).
+    the grid. ``ke``, ``kd``, ``ke_shear``, ``ke_bend`` are aliases
+    (:data:`springsim.model.builder.COEFFICIENT_ALIASES`).
 
     Parameters
     ----------

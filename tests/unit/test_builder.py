@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from springsim import ModelBuilder, SceneError
-from springsim.topology import PIN_MODES, cloth_grid_pairs, cloth_pin_mask
+from springsim.model.topology import PIN_MODES, cloth_grid_pairs, cloth_pin_mask
 
 
 def test_index_ranges_and_counts():

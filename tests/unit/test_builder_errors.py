@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from springsim.builder import ModelBuilder
+from springsim.model.builder import ModelBuilder
 from springsim.errors import SceneError
 
 

@@ -5,7 +5,7 @@ import os
 import numpy as np
 import pytest
 
-from springsim.builder import ModelBuilder
+from springsim.model.builder import ModelBuilder
 from springsim.energy import EnergyBound
 from springsim.driver import SimulationInterrupted, Trajectory, save_npz_atomic, simulate
 from springsim.errors import SimulationError, SolverError, SpringsimError

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from springsim import cli
-from springsim.builder import ModelBuilder
+from springsim.model.builder import ModelBuilder
 from springsim.driver import Trajectory
 from springsim.errors import SpringsimError
 from springsim.export import EXPORT_FORMATS, cloth_quads, export_trajectory

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from springsim.assembly import SystemAssembler
-from springsim.builder import ModelBuilder
+from springsim.model.builder import ModelBuilder
 from springsim.forces import dense_jacobians, make_force_terms
 
 H = 1.0 / 60.0

@@ -6,7 +6,7 @@ import pytest
 from helpers import PENDULUM_YAML
 
 from springsim import cli, make_integrator, simulate, simulate_adaptive
-from springsim.builder import ModelBuilder
+from springsim.model.builder import ModelBuilder
 from springsim import progress as progress_module
 from springsim.progress import ProgressLog, as_progress, format_seconds, logging_configured, phase
 

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from springsim.builder import ModelBuilder
+from springsim.model.builder import ModelBuilder
 from springsim.driver import Trajectory, simulate
 from springsim.errors import SpringsimError
 from springsim.integrators import make_integrator

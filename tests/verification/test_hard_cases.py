@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from springsim.assembly import SystemAssembler, dense_system_free
-from springsim.builder import ModelBuilder
+from springsim.model.builder import ModelBuilder
 from springsim.driver import simulate
 from springsim.errors import EnergyGrowthWarning, ConvergenceWarning, SceneError, SimulationError
 from springsim.forces import PROJECTED_MODES, JACOBIAN_MODES, dense_jacobians, eval_forces, make_force_terms

@@ -25,7 +25,7 @@ from hypothesis import strategies as st
 import springsim
 from springsim import cli
 from springsim.adaptive import simulate_adaptive
-from springsim.builder import ModelBuilder
+from springsim.model.builder import ModelBuilder
 from springsim.driver import Trajectory, save_npz_atomic, simulate
 from springsim.errors import SceneError, SceneTypeError, SimulationError, SimulationInterrupted
 from springsim.integrators import make_integrator

@@ -10,7 +10,7 @@ import pytest
 import scipy.sparse as sp
 
 from springsim.adaptive import simulate_adaptive
-from springsim.builder import ModelBuilder
+from springsim.model.builder import ModelBuilder
 from springsim.driver import simulate
 from springsim.errors import ConvergenceWarning, FallbackWarning, SimulationError, SolverError
 from springsim.integrators import make_integrator

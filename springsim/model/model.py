@@ -68,7 +68,7 @@ def _model_names() -> frozenset:
 
 
 def _registered() -> dict:
-    from .forces import FORCE_TERMS
+    from ..forces import FORCE_TERMS
 
     return FORCE_TERMS
 
@@ -189,7 +189,7 @@ class Model:
     def __init__(self, particle_q, particle_qd, particle_mass, particle_radius=None, particle_fixed=None,
                  terms: Mapping | None = None, gravity: float = -9.81, up_axis: int = 2, pair_epsilon: float = 1e-9,
                  cloth_grids: tuple = (), metadata: dict | None = None, **arrays):
-        from .forces._data import data_terms, term_attributes
+        from ..forces._data import data_terms, term_attributes
 
         q = np.asarray(particle_q, dtype=np.float64).reshape(-1, 3)
         n = q.shape[0]
@@ -222,7 +222,7 @@ class Model:
         # only reached when ordinary lookup fails: the term data's names (``spring_stiffness``, ``particle_drag``)
         if name.startswith("__") or name == "terms":
             raise AttributeError(name)
-        from .forces._data import term_attributes
+        from ..forces._data import term_attributes
 
         hit = term_attributes(reserved=_model_names()).get(name)
         if hit is None:
@@ -275,7 +275,7 @@ class Model:
             True where an array its force terms declare ``dissipative`` (:class:`springsim.forces.ArraySpec`:
             spring damping, drag) has a non-zero value.
         """
-        from .forces._data import data_terms
+        from ..forces._data import data_terms
 
         return any(np.any(self.terms[name][spec.name] != 0) for name, cls in data_terms() if name in self.terms
                    for spec in cls.data if spec.dissipative)
@@ -295,7 +295,7 @@ class Model:
         of every other term that has any (a pair, or a value other than its default). So registering a term
         does not change the fingerprint of a model that does not use it.
         """
-        from .forces._data import term_attributes
+        from ..forces._data import term_attributes
 
         h = hashlib.sha256()
 
@@ -329,7 +329,7 @@ class Model:
             ``("<term>.<array>", array)`` by term name, each term's pair list first, then its arrays in declared
             order; empty for every model of the built-in terms.
         """
-        from .forces._data import term_attributes
+        from ..forces._data import term_attributes
 
         table = term_attributes(reserved=_model_names())
         done = {table[name] for name in FINGERPRINT_V1 if name in table}
@@ -342,7 +342,7 @@ class Model:
         return out
 
     def __repr__(self) -> str:
-        from .forces._data import data_terms, term_group
+        from ..forces._data import data_terms, term_group
 
         pairs = "".join(f", {term_group(name, cls)}={getattr(self, name + '_count')}"
                         for name, cls in data_terms() if any(s.per == "pair" for s in cls.data))

@@ -1,4 +1,4 @@
-"""`ModelBuilder`: assemble a :class:`~springsim.model.Model` item by item or in bulk.
+"""`ModelBuilder`: assemble a :class:`~springsim.model.model.Model` item by item or in bulk.
 
 Single-item calls (``add_particle``, ``add_spring``, ``add_gravitational``) return the
 new item's index; their bulk twins (``add_particles``, ``add_springs``,
@@ -16,11 +16,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from .errors import SceneError, SceneTypeError
-from .errors import check_numeric as _numeric
-from .forces._data import check_rule as _check_rule
-from .forces._data import data_terms, format_value as _fmt, term_group
-from .forces.gravitational import SOFTENING_PRECISION, SOFTENING_TIME, default_softening
+from ..errors import SceneError, SceneTypeError
+from ..errors import check_numeric as _numeric
+from ..forces._data import check_rule as _check_rule
+from ..forces._data import data_terms, format_value as _fmt, term_group
+from ..forces.gravitational import SOFTENING_PRECISION, SOFTENING_TIME, default_softening
 from .model import AXES, ClothGrid, Model
 from .topology import PLANES, cloth_grid_pairs, cloth_pin_mask, index_mask
 
@@ -492,7 +492,7 @@ class ModelBuilder:
         """Add an ``nx`` x ``ny`` cloth of particles and springs; return the range of its particles.
 
         Particle ``(i, j)`` is ``start + j*nx + i``; the springs are those of
-        :func:`springsim.topology.cloth_grid_pairs` (structural along i and j, both shear
+        :func:`springsim.model.topology.cloth_grid_pairs` (structural along i and j, both shear
         diagonals, bending at distance two). Every argument is validated before anything is
         added; an invalid one raises :class:`~springsim.errors.SceneError` (or ``SceneTypeError``)
         with the path ``cloth.<argument>``. The grid is recorded in :attr:`cloth_grids`; its
@@ -530,7 +530,7 @@ class ModelBuilder:
             list or an integer array), a boolean array (nx*ny,), ``{"i": I, "j": J}``,
             ``{"box": [[xmin, ymin, zmin], [xmax, ymax, zmax]]}`` (scene coordinates [m], closed, not
             empty), or a list of these (their union); ``None`` is ``"none"``. See
-            :mod:`springsim.topology`.
+            :mod:`springsim.model.topology`.
         ke, kd, ke_y, kd_y, ke_shear, kd_shear, ke_bend, kd_bend
             Aliases of ``stiffness``, ``damping``, ``stiffness_y``, ... (:data:`COEFFICIENT_ALIASES`); giving
             both spellings of one coefficient is an error.
@@ -664,7 +664,7 @@ class ModelBuilder:
             ``{"box": [lo, hi]}``, ...); the other particles keep their flags.
         grid
             Which grid: an index into :attr:`cloth_grids` (default the last one added) or a
-            :class:`~springsim.model.ClothGrid`.
+            :class:`~springsim.model.model.ClothGrid`.
         fixed
             The new flag of the chosen particles.
 

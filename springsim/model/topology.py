@@ -34,7 +34,7 @@ import reprlib
 
 import numpy as np
 
-from .errors import SceneError, SceneTypeError
+from ..errors import SceneError, SceneTypeError
 
 __all__ = [
     "PIN_MODES",
