@@ -6,7 +6,7 @@ for one's options, e.g.::
     python -m benchmarks cloth-grid --n 128 --steps 30 --warmup 9 --solver amg-cg --rtol 1e-6
 
 Cases come from :mod:`springsim.scene.gallery` (the benchmark cloth and the accuracy cloth) and the
-shipped scenes; energies and spectral estimates from the library (:mod:`springsim.energy`,
+shipped scenes; energies and spectral estimates from the library (:mod:`springsim.run.energy`,
 :mod:`springsim.analysis`); tables, CSV files and plots are written by :mod:`benchmarks.common` into
 ``benchmarks/results/`` (git-ignored). Every benchmark reports speed together with an error, measured
 against a reference of the ODE (:mod:`springsim.reference`) or, for linear solves, the direct

@@ -52,10 +52,10 @@ import numpy as np
 
 from springsim import ModelBuilder, make_integrator, simulate
 from springsim.cli.argtypes import positive_float
-from springsim.adaptive import simulate_adaptive
+from springsim.run.adaptive import simulate_adaptive
 from springsim.integrators import ImplicitIntegrator, StepStats
 from springsim.reference import reference_trajectory
-from springsim.energy import total_energy
+from springsim.run.energy import total_energy
 from springsim.scene.gallery import accuracy_cloth
 
 from . import common
@@ -137,7 +137,7 @@ def rms(a, b):
 
 
 def energy(model, q, v):
-    """Kinetic + potential energy [J] (:func:`springsim.energy.total_energy`)."""
+    """Kinetic + potential energy [J] (:func:`springsim.run.energy.total_energy`)."""
     return float(total_energy(model, q, v))
 
 

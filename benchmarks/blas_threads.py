@@ -53,12 +53,12 @@ def main(argv=None) -> int:
         wall1, cpu1, q1 = _run(a.n, a.solver, a.steps)
         policy = _threads.single_blas_thread
         _threads.single_blas_thread = contextlib.nullcontext
-        springsim.driver.single_blas_thread = contextlib.nullcontext
+        springsim.run.driver.single_blas_thread = contextlib.nullcontext
         springsim.linsolve._base.single_blas_thread = contextlib.nullcontext
         try:
             wall2, cpu2, q2 = _run(a.n, a.solver, a.steps)
         finally:
-            _threads.single_blas_thread = springsim.driver.single_blas_thread = policy
+            _threads.single_blas_thread = springsim.run.driver.single_blas_thread = policy
             springsim.linsolve._base.single_blas_thread = policy
     finally:
         for b in busy:

@@ -3,7 +3,7 @@
 Every benchmark reports speed *and* error. Errors are position errors at the final
 time, RMS and max over particles, divided by the scene's size ``L`` (the largest
 extent of the initial positions, 1 m for the benchmark cloth). Energies are kinetic
-plus every potential (:func:`springsim.energy.total_energy`), reported relative to ``E_scale = max(|E0|,
+plus every potential (:func:`springsim.run.energy.total_energy`), reported relative to ``E_scale = max(|E0|,
 m_total |g| L, KE0)``. Results go to ``benchmarks/results/`` (git-ignored); plots
 need matplotlib (``pip install 'springsim[plot]'``), tables do not.
 """
@@ -122,7 +122,7 @@ def reference_final(case: Case, *, method: str = "auto", rtol: float = 1e-10, ca
                                atol=atol)
     if cache:
         path.parent.mkdir(parents=True, exist_ok=True)
-        from springsim.driver import save_npz_atomic
+        from springsim.run.driver import save_npz_atomic
 
         save_npz_atomic(path, q=ref.q[-1], qd=ref.qd[-1])
     return ref.q[-1], ref.qd[-1], ref.wall_s, method

@@ -83,7 +83,7 @@ from pathlib import Path
 
 import numpy as np
 
-from springsim.energy import total_energy
+from springsim.run.energy import total_energy
 
 from . import reference_cache
 from .common import RESULTS_DIR, fmt, machine_info, markdown_table, write_csv

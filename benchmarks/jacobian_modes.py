@@ -20,7 +20,7 @@ import time
 import warnings
 
 from . import accuracy as acc
-from springsim.driver import simulate
+from springsim.run.driver import simulate
 from springsim.integrators import make_integrator
 
 HEADER = ["n", "method", "solver", "jacobian", "escalate", "escalate_after", "steps", "cpu_per_step_s", "newton_per_step",

@@ -27,7 +27,7 @@ default 1e4, ``--kd`` default 0):
    (:func:`benchmarks.frame_cost.run_symplectic`): the free particles start displaced by 1e-6 m of seeded
    Gaussian noise, the engine runs ``--window`` s (at most ``--max-steps`` substeps), and every 10
    substeps its state must be finite with a total energy (kinetic, springs, gravity, computed by
-   :func:`springsim.energy.total_energy` from the engine's state in float64) no more than 0.1 m g L
+   :func:`springsim.run.energy.total_energy` from the engine's state in float64) no more than 0.1 m g L
    above the initial one. The bracket starts at ``springsim.analysis.explicit_substeps`` of the
    largest natural frequency; ``substeps_springsim`` and ``substeps_newton`` are the smallest stable
    counts.
@@ -278,7 +278,7 @@ def stable(engine, model, substeps: int, *, window: float, max_steps: int | None
     The criterion of :func:`benchmarks.frame_cost.run_symplectic`, applied to any engine: from the
     initial state with the free particles displaced by ``perturb`` m of Gaussian noise (``seed``), run
     ``window`` s (at most ``max_steps`` substeps); every ``check_every`` substeps and at the end the
-    state must be finite and its total energy (float64, :func:`springsim.energy.total_energy`) at most
+    state must be finite and its total energy (float64, :func:`springsim.run.energy.total_energy`) at most
     ``growth_tol * m_total |g| L`` (L = 1 m) above the initial one.
 
     Parameters
@@ -294,7 +294,7 @@ def stable(engine, model, substeps: int, *, window: float, max_steps: int | None
     -------
     bool
     """
-    from springsim.energy import total_energy
+    from springsim.run.energy import total_energy
     from springsim.forces import make_force_terms
 
     h = frame_dt / substeps

@@ -224,7 +224,7 @@ def cached_frames(model, method: str, substeps: int, frames: int, *, case: str, 
     r = reference_frames(model, method, substeps, frames, frame_dt=frame_dt)
     r.update(cached=False, path=path)
     if path is not None and r["finite"]:
-        from springsim.driver import save_npz_atomic
+        from springsim.run.driver import save_npz_atomic
 
         path.parent.mkdir(parents=True, exist_ok=True)
         save_npz_atomic(path, q=r["q"], qd=r["qd"], finite=np.bool_(r["finite"]), cpu_s=np.float64(r["cpu_s"]),

@@ -15,7 +15,7 @@ rtol 1e-10). Four sweeps:
     every implicit integrator with every solver in :data:`springsim.linsolve.LINEAR_SOLVERS`
     at a ladder of relative tolerances (direct solvers once), at ``h = 1/60`` s;
 ``adaptive``
-    :func:`springsim.adaptive.simulate_adaptive` with ``bdf2``, ``tr_bdf2`` and ``energy_momentum`` (every
+    :func:`springsim.run.adaptive.simulate_adaptive` with ``bdf2``, ``tr_bdf2`` and ``energy_momentum`` (every
     integrator with an error estimate) over a ladder of
     time tolerances ``time_rtol`` 1e-2 ... 1e-6 (``time_atol = time_rtol * L``); the row's ``dt``
     is the mean accepted step, ``steps``/``rejected`` the accepted/rejected steps, ``h_min``/``h_max``
@@ -61,7 +61,7 @@ from pathlib import Path
 
 import numpy as np
 
-from springsim.energy import total_energy
+from springsim.run.energy import total_energy
 from springsim.integrators import INTEGRATORS
 
 from .common import (RESULTS_DIR, SCENE_NAMES, benchmark_case, fit_order, markdown_table, position_errors,
@@ -124,13 +124,13 @@ def _run(case, ref_q, e_ref_drift, integrator: str, dt: float | None, *, sweep: 
          time_rtol: float | None = None, **options) -> dict:
     """One simulation; returns a result row (never raises on blow-up or solver failure).
 
-    With ``time_rtol`` the run is adaptive (:func:`springsim.adaptive.simulate_adaptive`,
+    With ``time_rtol`` the run is adaptive (:func:`springsim.run.adaptive.simulate_adaptive`,
     ``time_atol = time_rtol * L``) and ``dt`` is ignored: the row's ``dt`` is then the mean
     accepted step, ``steps`` the accepted and ``rejected`` the rejected steps, and the Newton and
     linear iterations per step count every attempt (rejected ones too) per accepted step.
     """
-    from springsim.adaptive import simulate_adaptive
-    from springsim.driver import simulate
+    from springsim.run.adaptive import simulate_adaptive
+    from springsim.run.driver import simulate
     from springsim.errors import SimulationError, SolverError
     from springsim.forces import make_force_terms
     from springsim.integrators import make_integrator

@@ -39,7 +39,7 @@ STAGES = {"tr_bdf2": 2}
 def run(n: int, ke: float, kd: float, inv_h: int, name: str, frames: int, **options) -> dict:
     """One run (module docstring): its table row; ``options`` go to the integrator."""
     import springsim as ss
-    from springsim.energy import total_energy
+    from springsim.run.energy import total_energy
     from springsim.scene import benchmark_cloth
 
     model = benchmark_cloth(n, stiffness=ke, damping=kd)

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 import springsim as ss
-from springsim.energy import total_energy
+from springsim.run.energy import total_energy
 from springsim.reference import reference_trajectory
 
 

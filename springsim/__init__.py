@@ -28,9 +28,9 @@ _LAZY = {
     "ModelBuilder": ".model.builder",
     "Model": ".model",
     "State": ".model",
-    "Trajectory": ".driver",
-    "simulate": ".driver",
-    "simulate_adaptive": ".adaptive",
+    "Trajectory": ".run.driver",
+    "simulate": ".run.driver",
+    "simulate_adaptive": ".run.adaptive",
     "make_integrator": ".integrators",
     "INTEGRATORS": ".integrators",
     "make_linear_solver": ".linsolve",
@@ -60,10 +60,10 @@ def __dir__():
 
 
 if TYPE_CHECKING:  # pragma: no cover
-    from .adaptive import simulate_adaptive
-    from .model.builder import ModelBuilder
-    from .driver import Trajectory, simulate
     from .integrators import INTEGRATORS, make_integrator
     from .linsolve import LINEAR_SOLVERS, make_linear_solver
     from .model import Model, State
+    from .model.builder import ModelBuilder
+    from .run.adaptive import simulate_adaptive
+    from .run.driver import Trajectory, simulate
     from .scene import load_scene

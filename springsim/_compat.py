@@ -22,6 +22,11 @@ __all__ = ["MOVED", "MovedModuleFinder", "install"]
 MOVED: dict[str, str] = {
     "springsim.builder": "springsim.model.builder",
     "springsim.topology": "springsim.model.topology",
+    "springsim.driver": "springsim.run.driver",
+    "springsim.adaptive": "springsim.run.adaptive",
+    "springsim.options": "springsim.run.options",
+    "springsim.progress": "springsim.run.progress",
+    "springsim.energy": "springsim.run.energy",
 }
 
 # Frames that an import passes through on its way to the loader: the import system's, importlib.import_module's,

@@ -153,7 +153,7 @@ class SimulationError(SpringsimError):
     """A simulation stopped early (blow-up, failed solve).
 
     The frames computed before the failure are kept in :attr:`trajectory`
-    (a :class:`springsim.driver.Trajectory` or ``None``); :attr:`step` is the step at which
+    (a :class:`springsim.run.driver.Trajectory` or ``None``); :attr:`step` is the step at which
     it stopped.
 
     Parameters

@@ -16,7 +16,7 @@ import scipy.sparse as sp
 from scipy.integrate import solve_ivp
 
 from .assembly import SystemAssembler
-from .driver import Trajectory
+from .run.driver import Trajectory
 from .forces import eval_forces, make_force_terms
 
 __all__ = ["reference_trajectory"]

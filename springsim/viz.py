@@ -107,7 +107,7 @@ def _save_figure(fig, out, dpi) -> Path:
 
 
 def run_title(traj, scene: str | None = None) -> str:
-    """``"<scene>: <integrator>, h = <dt> s"`` from a trajectory's :attr:`~springsim.driver.Trajectory.meta`
+    """``"<scene>: <integrator>, h = <dt> s"`` from a trajectory's :attr:`~springsim.run.driver.Trajectory.meta`
     (adaptive runs: ``"adaptive, rtol = ..."``); the parts the metadata lacks are left out.
 
     Parameters

@@ -5,7 +5,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from springsim.driver import simulate
+from springsim.run.driver import simulate
 from springsim.integrators import make_integrator
 from springsim.scene import load_scene
 

@@ -1,8 +1,8 @@
 """``springsim run``: run a scene and print a summary (serially, or with the petsc backend under ``mpiexec``).
 
 The options of a run are those of :func:`springsim.cli.runner.add_run_options` (the fields of
-:class:`springsim.options.SolverConfig`) plus ``--out``, ``--frame-every`` and ``--keep-going``. Progress and
-set-up phases are logged (:mod:`springsim.progress`) to stderr.
+:class:`springsim.run.options.SolverConfig`) plus ``--out``, ``--frame-every`` and ``--keep-going``. Progress and
+set-up phases are logged (:mod:`springsim.run.progress`) to stderr.
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import argparse
 import sys
 
 from ..errors import SimulationError, SimulationInterrupted, SpringsimError
-from ..options import MAX_STEPS
+from ..run.options import MAX_STEPS
 from .argtypes import int_at_least
 from .distributed import abort_on_error, agree, run_distributed
 from .runner import (_provenance, add_run_options, execute, load_and_configure, load_trajectory_for,  # noqa: F401
@@ -36,7 +36,7 @@ def _add_arguments(p: argparse.ArgumentParser) -> None:
 def _load_agreed(args):
     """:func:`load_and_configure` under ``mpiexec``: the ranks agree on the outcome (one message from rank 0)."""
     from ..distributed import env_rank
-    from ..driver import check_output_path
+    from ..run.driver import check_output_path
 
     err, scene, cfg = None, None, None
     try:
@@ -75,7 +75,7 @@ def _run_petsc(args, scene, cfg) -> int:
 
 def _run(args: argparse.Namespace) -> int:
     from ..distributed import env_rank, env_size
-    from ..driver import check_output_path
+    from ..run.driver import check_output_path
 
     if env_size() > 1 or getattr(args, "backend", None) == "petsc":
         scene, cfg = _load_agreed(args)

@@ -1,6 +1,6 @@
 """Running a scene for a command: the path ``run``, ``plot`` and ``render`` share.
 
-:func:`add_run_options` declares the options of a run (the fields of :class:`springsim.options.SolverConfig`,
+:func:`add_run_options` declares the options of a run (the fields of :class:`springsim.run.options.SolverConfig`,
 one flag each, derived from its declarations, plus ``-v/--verbose`` and ``-q/--quiet``);
 :func:`load_and_configure` loads the scene with them applied; :func:`configured_integrator` builds the
 integrator on the configured backend; :func:`execute` runs it. The summary (:func:`summary_lines`), the report
@@ -19,7 +19,7 @@ from pathlib import Path
 
 from ..errors import EnergyGrowthWarning, SceneError, SimulationInterrupted, SpringsimError, SpringsimWarning
 from ..forces._data import data_terms, term_group
-from ..options import BACKENDS, SolverConfig
+from ..run.options import BACKENDS, SolverConfig
 from .session import _stopped_by, interrupt_status, signals_deferred
 
 __all__ = ["add_run_options", "load_and_configure", "configured_integrator", "execute", "warn_failed_steps",
@@ -67,7 +67,7 @@ def load_and_configure(args: argparse.Namespace):
     config : SolverConfig
         The scene's ``solver:`` block with the flags given applied (validated).
     """
-    from ..progress import phase
+    from ..run.progress import phase
     from ..scene import load_scene
     from ..scene.shipped import resolve_scene
 
@@ -140,7 +140,7 @@ def execute(scene, cfg, *, record: bool = True, frame_every: int = 1, progress=T
     frame_every : int
         Record every ``frame_every``-th step (adaptive runs: a frame every ``frame_every * dt``).
     progress : callable, bool or None
-        As for :func:`springsim.simulate` (default: log lines, :class:`springsim.progress.ProgressLog`).
+        As for :func:`springsim.simulate` (default: log lines, :class:`springsim.run.progress.ProgressLog`).
     quiet : bool
         No warning lines (the ranks other than the root of a distributed run).
 
@@ -157,9 +157,9 @@ def execute(scene, cfg, *, record: bool = True, frame_every: int = 1, progress=T
     SimulationError
         The run failed; ``trajectory`` holds the frames so far.
     """
-    from ..adaptive import simulate_adaptive
-    from ..driver import simulate
-    from ..progress import as_progress, logger, phase
+    from ..run.adaptive import simulate_adaptive
+    from ..run.driver import simulate
+    from ..run.progress import as_progress, logger, phase
 
     if cfg.dt is None:  # a config built in Python without a step (the YAML loader requires one)
         raise SceneError("solver.timestep", "missing: give solver.timestep or --dt")
@@ -445,7 +445,7 @@ def load_trajectory_for(path, scene, scene_path):
         Another particle count, or no frames.
     """
     from .._npz import npz_headers
-    from ..driver import Trajectory
+    from ..run.driver import Trajectory
 
     q = npz_headers(path).get("q")
     n = scene.model.particle_count

@@ -121,7 +121,7 @@ def configure_logging(verbose: int = 0, quiet: bool = False):
     ------
     None
     """
-    from ..progress import logger
+    from ..run.progress import logger
 
     handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(logging.Formatter("springsim: %(message)s"))

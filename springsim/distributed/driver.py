@@ -4,7 +4,7 @@
 Call it on every rank of the communicator with the same model and options (``mpiexec -n 4 python
 script.py``, or ``mpiexec -n 4 springsim run scene.yaml --backend petsc``). The integrators are the serial ones
 (:mod:`springsim.integrators`) over a :class:`~springsim.distributed.DistributedSystem`; frames are gathered on
-the root rank, which returns the :class:`~springsim.driver.Trajectory`; the other ranks return None. Blow-ups
+the root rank, which returns the :class:`~springsim.run.driver.Trajectory`; the other ranks return None. Blow-ups
 and stage failures are decided from global reductions, so every rank stops at the same step with the same
 :class:`~springsim.errors.SimulationError`; the root's carries the frames so far.
 """
@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import time
 
-from ..driver import simulate
+from ..run.driver import simulate
 from ..integrators import make_integrator
 from ..linsolve import DEFAULT_RTOL
 from .system import DistributedSystem

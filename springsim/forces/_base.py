@@ -470,7 +470,7 @@ class ForceTerm(ABC):
         """A lower bound [J] of :meth:`potential_energy` over all positions, or ``-inf``.
 
         Terms whose potential is unbounded below must override this (uniform gravity is
-        handled by the caller, see :mod:`springsim.energy`); the default 0 holds for
+        handled by the caller, see :mod:`springsim.run.energy`); the default 0 holds for
         dissipative terms and for springs.
         """
         return 0.0

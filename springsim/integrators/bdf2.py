@@ -28,7 +28,7 @@ the velocity, is worse on stiff cloth: it extrapolates the stiff modes explicitl
 the 32x32 benchmark cloth at h = 1/60 s Newton then missed its 5-iteration limit on 23-25
 of 30 steps instead of 8 (implicit Euler: 8).
 
-Local error estimate (used by :func:`springsim.adaptive.simulate_adaptive`): the predictor
+Local error estimate (used by :func:`springsim.run.adaptive.simulate_adaptive`): the predictor
 is the quadratic ``p`` with ``p(t_{n-1}) = y_{n-1}``, ``p(t_n) = y_n``, ``p'(t_n) = y'_n``
 (``y' = qd`` for positions, the acceleration ``(v - v_hat)/c`` of the previous stage for
 velocities, so it costs no force evaluation). With ``y'''`` the third derivative,

@@ -40,7 +40,7 @@ implicit Euler, as TR-BDF2 does, would not help: its stage coefficient ``c = h``
 its Newton fails first (on the 8 x 8 benchmark cloth at ``h = 0.1 s`` it did, and the unconverged result
 gained 200 J).
 
-Error estimate (adaptive stepping, :func:`springsim.adaptive.simulate_adaptive`). The method has no
+Error estimate (adaptive stepping, :func:`springsim.run.adaptive.simulate_adaptive`). The method has no
 embedded pair, and the predictor-corrector difference of multistep codes (Milne's device) measures a
 multiple of ``y'''``, which is not the midpoint rule's local error on nonlinear problems. So the estimate
 is step doubling (Hairer, Norsett and Wanner 1993, sec. II.4): while ``estimating`` is set (adaptive

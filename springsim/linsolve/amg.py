@@ -52,7 +52,7 @@ import time
 
 import numpy as np
 
-from ..progress import logger, phase
+from ..run.progress import logger, phase
 from ._preconditioner import Preconditioner
 
 _log = logger.getChild("linsolve")

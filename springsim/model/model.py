@@ -290,7 +290,7 @@ class Model:
 
         Two models with equal fingerprints simulate identically; the value is the same on every
         machine (arrays are hashed as little-endian bytes with their dtype and shape). Saved
-        trajectories record it (:meth:`springsim.driver.Trajectory.save`). The arrays of
+        trajectories record it (:meth:`springsim.run.driver.Trajectory.save`). The arrays of
         :data:`FINGERPRINT_V1` come first, as they always have; then the scalars; then, by term name, the data
         of every other term that has any (a pair, or a value other than its default). So registering a term
         does not change the fingerprint of a model that does not use it.

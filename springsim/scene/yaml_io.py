@@ -45,7 +45,7 @@ import yaml
 from ..model.builder import COEFFICIENT_ALIASES, ModelBuilder
 from ..errors import SceneError
 from ..forces._data import data_terms, term_group
-from ..options import SolverConfig
+from ..run.options import SolverConfig
 from ..model import AXES, Model
 from ..model.topology import pin_mask
 from .gallery import BENCHMARK_DT, benchmark_cloth_grid

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from springsim.driver import simulate
+from springsim.run.driver import simulate
 from springsim.integrators import make_integrator
 from springsim.scene.gallery import BENCHMARK_DT, benchmark_cloth
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from springsim import ModelBuilder, SceneError, make_integrator, simulate
-from springsim.adaptive import hermite_frame, simulate_adaptive
+from springsim.run.adaptive import hermite_frame, simulate_adaptive
 from springsim.reference import reference_trajectory
 
 
@@ -184,7 +184,7 @@ def test_step_size_controller_accepts_and_chooses_the_next_step():
     """The elementary controller: accept at err <= 1; h min(grow, max(shrink, safety err^(-1/(p+1)))) after an
     accepted step, never growing right after a rejection; at least 10 % smaller after a rejection; h/4 after a
     failed attempt; always within [h_min, h_max]."""
-    from springsim.adaptive import StepSizeController
+    from springsim.run.adaptive import StepSizeController
 
     c = StepSizeController(2, h_min=1e-4, h_max=0.1)
     assert (c.safety, c.grow, c.shrink) == (0.9, 4.0, 0.2)
@@ -211,7 +211,7 @@ def test_step_size_controller_accepts_and_chooses_the_next_step():
 def test_step_size_controller_first_step_and_end_of_run():
     """The first step is h0 (default min(1e-3, h_max)) clipped to [h_min, h_max]; a step lands on the end of the run,
     and where less than h_min would remain after it, the rest is split into two equal steps."""
-    from springsim.adaptive import StepSizeController
+    from springsim.run.adaptive import StepSizeController
 
     c = StepSizeController(2, h_min=1e-4, h_max=0.1, safety=0.8, grow=2.0, shrink=0.5)
     assert c.first_step() == 1e-3 and c.first_step(1.0) == 0.1 and c.first_step(1e-9) == 1e-4

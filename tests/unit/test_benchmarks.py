@@ -121,7 +121,7 @@ def test_scaling_quick(bench, tmp_path):
 
 def test_reference_agrees_with_springsim_at_tiny_steps(bench):
     """The solve_ivp reference and TR-BDF2/midpoint at h = 1/4000 s agree on the spring and a 4x4 cloth."""
-    from springsim.driver import simulate
+    from springsim.run.driver import simulate
     from springsim.integrators import INTEGRATORS, make_integrator
 
     c = bench["common"]

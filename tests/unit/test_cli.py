@@ -55,7 +55,7 @@ def test_out_npz_and_overrides(capsys, scene_file, tmp_path):
         t, q, qd = z["t"], z["q"], z["qd"]
     import hashlib
 
-    from springsim.driver import Trajectory
+    from springsim.run.driver import Trajectory
 
     meta = Trajectory.load(out_file).meta
     assert meta["scene_sha256"] == hashlib.sha256(scene_file.read_bytes()).hexdigest()
@@ -120,7 +120,7 @@ def test_bad_option_values_exit_2(capsys, scene_file):
 
 def _fake_simulate(exc_type):
     def fake(model, integrator, dt, steps, **kwargs):
-        from springsim.driver import Trajectory
+        from springsim.run.driver import Trajectory
 
         q0 = model.particle_q[None].copy()
         traj = Trajectory(np.array([0.0]), q0, np.zeros_like(q0))
@@ -142,7 +142,7 @@ def test_blow_up_saves_finite_frames(capsys, tmp_path):
 
 def test_interrupt_saves_frames_exit_130(capsys, scene_file, tmp_path, monkeypatch):
     """Ctrl-C (SimulationInterrupted) saves the frames so far, says so and exits 130."""
-    from springsim import driver
+    from springsim.run import driver
 
     monkeypatch.setattr(driver, "simulate", _fake_simulate(driver.SimulationInterrupted))
     out_file = tmp_path / "int.npz"

@@ -12,7 +12,7 @@ import pytest
 
 from springsim import cli
 from springsim.model.builder import ModelBuilder
-from springsim.driver import Trajectory
+from springsim.run.driver import Trajectory
 from springsim.errors import SpringsimError
 from springsim.export import EXPORT_FORMATS, cloth_quads, export_trajectory
 from springsim.scene import benchmark_cloth

@@ -3,7 +3,7 @@
 import numpy as np
 
 from springsim import ModelBuilder, simulate
-from springsim.driver import Trajectory
+from springsim.run.driver import Trajectory
 from springsim.integrators import make_integrator
 
 

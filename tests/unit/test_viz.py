@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from springsim.model.builder import ModelBuilder
-from springsim.driver import Trajectory, simulate
+from springsim.run.driver import Trajectory, simulate
 from springsim.errors import SpringsimError
 from springsim.integrators import make_integrator
 from springsim.scene import benchmark_cloth

@@ -351,7 +351,7 @@ def test_options_are_declared_once():
     import dataclasses
 
     from springsim.cli.run import add_run_options
-    from springsim.options import SolverConfig
+    from springsim.run.options import SolverConfig
 
     p = argparse.ArgumentParser()
     add_run_options(p)

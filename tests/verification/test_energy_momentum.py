@@ -6,7 +6,7 @@ import pytest
 from helpers import conservative, internal, random_scene
 
 from springsim import make_integrator, simulate
-from springsim.energy import total_energy
+from springsim.run.energy import total_energy
 from springsim.scene.gallery import benchmark_cloth
 
 
@@ -213,7 +213,7 @@ def test_adaptive_run_keeps_the_energy():
     """Every accepted step is an energy-momentum step, whatever its size: an adaptive run of an undamped scene
     ends with its initial energy (to what the Newton tolerance allows), and the fixed-step estimating flag is
     restored afterwards."""
-    from springsim.adaptive import simulate_adaptive
+    from springsim.run.adaptive import simulate_adaptive
 
     model = random_scene(np.random.default_rng(7401), damping=False, select=conservative, speed=0.5)
     integ = make_integrator("energy_momentum", model, solver="direct", newton_tol=1e-11)
@@ -230,7 +230,7 @@ def test_adaptive_run_keeps_the_energy():
 def test_step_doubling_failure_is_reported_without_estimate(monkeypatch):
     """A stage that fails while estimating fails the step (no retake in substeps: the adaptive driver shrinks the
     step) and leaves no estimate; the adaptive driver then retries with a smaller step and finishes."""
-    from springsim.adaptive import simulate_adaptive
+    from springsim.run.adaptive import simulate_adaptive
     from springsim.integrators.energy_momentum import IntegratorEnergyMomentum
 
     model = benchmark_cloth(4)

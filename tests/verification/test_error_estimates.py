@@ -115,7 +115,7 @@ def test_filtered_estimates_cost_nothing_in_fixed_step_runs():
     fixed-step runs do the same solves as without the filter and give the same trajectory. The raw BDF2 estimate
     is free and always there."""
     from springsim import simulate
-    from springsim.adaptive import simulate_adaptive
+    from springsim.run.adaptive import simulate_adaptive
 
     model = benchmark_cloth(5)
     runs = {}

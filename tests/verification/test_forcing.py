@@ -10,7 +10,7 @@ from springsim import SceneError, simulate
 from springsim.integrators import make_integrator
 from springsim.integrators._implicit import forcing_term
 from springsim.linsolve import make_linear_solver
-from springsim.options import SolverConfig
+from springsim.run.options import SolverConfig
 from springsim.scene.gallery import benchmark_cloth
 
 

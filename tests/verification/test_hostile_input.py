@@ -24,9 +24,9 @@ from hypothesis import strategies as st
 
 import springsim
 from springsim import cli
-from springsim.adaptive import simulate_adaptive
+from springsim.run.adaptive import simulate_adaptive
 from springsim.model.builder import ModelBuilder
-from springsim.driver import Trajectory, save_npz_atomic, simulate
+from springsim.run.driver import Trajectory, save_npz_atomic, simulate
 from springsim.errors import SceneError, SceneTypeError, SimulationError, SimulationInterrupted
 from springsim.integrators import make_integrator
 from springsim.linsolve import LINEAR_SOLVERS, make_linear_solver
@@ -257,8 +257,8 @@ def test_out_follows_symlinks_and_keeps_modes(tmp_path, capsys):
 def test_unwritable_out_fails_before_the_run(tmp_path, capsys, monkeypatch):
     """A directory that does not take new files fails --out at once, before any step is computed."""
     steps = []
-    real_simulate = springsim.driver.simulate
-    monkeypatch.setattr(springsim.driver, "simulate", lambda *a, **k: steps.append(1) or real_simulate(*a, **k))
+    real_simulate = springsim.run.driver.simulate
+    monkeypatch.setattr(springsim.run.driver, "simulate", lambda *a, **k: steps.append(1) or real_simulate(*a, **k))
     real_open = os.open
 
     def refuse(path, *a, **k):  # the directory refuses new files (root ignores permission bits: inject it)

@@ -107,7 +107,7 @@ def test_nonconvergence_is_reported():
     ConvergenceWarning per run from simulate (not one per step), or as SolverError with on_nonconvergence='raise'."""
     import warnings
 
-    from springsim.driver import simulate
+    from springsim.run.driver import simulate
     from springsim.errors import ConvergenceWarning, SimulationError, SolverError
 
     model = damped_chain()

@@ -28,7 +28,7 @@ from helpers import one_line_error, run_cli
 
 import springsim
 from springsim import cli
-from springsim.driver import Trajectory
+from springsim.run.driver import Trajectory
 from springsim.errors import SpringsimError
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -53,21 +53,21 @@ def scene(tmp_path):
 def no_run(monkeypatch):
     """Counts the runs started (a list that grows by one per call of ``simulate``)."""
     runs = []
-    real = springsim.driver.simulate
-    monkeypatch.setattr(springsim.driver, "simulate", lambda *a, **k: runs.append(1) or real(*a, **k))
+    real = springsim.run.driver.simulate
+    monkeypatch.setattr(springsim.run.driver, "simulate", lambda *a, **k: runs.append(1) or real(*a, **k))
     return runs
 
 
 def _simulate_then(monkeypatch, action):
     """Make the run call ``action()`` after its last step (the scene file is gone, a signal arrives, ...)."""
-    real = springsim.driver.simulate
+    real = springsim.run.driver.simulate
 
     def simulate(*a, **k):
         traj = real(*a, **k)
         action()
         return traj
 
-    monkeypatch.setattr(springsim.driver, "simulate", simulate)
+    monkeypatch.setattr(springsim.run.driver, "simulate", simulate)
 
 
 def _savez_that(monkeypatch, action, times=1):
@@ -184,8 +184,8 @@ def test_interrupt_after_the_scene_moved_keeps_the_frames(scene, tmp_path, capsy
                 raise KeyboardInterrupt
         return real(*a, **{**k, "progress": progress})
 
-    real = springsim.driver.simulate
-    monkeypatch.setattr(springsim.driver, "simulate", progress_then_move)
+    real = springsim.run.driver.simulate
+    monkeypatch.setattr(springsim.run.driver, "simulate", progress_then_move)
     out = tmp_path / "out.npz"
     code, _, err = _main(capsys, "run", scene, "--out", out)
     assert code == 130 and f"to {out}" in err and "Traceback" not in err
@@ -234,8 +234,8 @@ def test_interrupted_run_with_a_full_disk_exits_130(scene, tmp_path, capsys, mon
     def full():
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    real = springsim.driver.simulate
-    monkeypatch.setattr(springsim.driver, "simulate", progress_interrupt)
+    real = springsim.run.driver.simulate
+    monkeypatch.setattr(springsim.run.driver, "simulate", progress_interrupt)
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
     _savez_that(monkeypatch, full)
     code, _, err = _main(capsys, "run", scene, "--out", tmp_path / "out.npz")
@@ -267,15 +267,15 @@ def test_sigterm_during_the_run_saves_the_frames(tmp_path):
     (tmp_path / "scene.yaml").write_text(TWO.replace("steps: 6", "steps: 50"))
     r = _script("""
         import os, signal, sys
-        import springsim.driver
+        import springsim.run.driver
         from springsim import cli
-        real = springsim.driver.simulate
+        real = springsim.run.driver.simulate
         def simulate(*a, **k):
             def progress(k_, n):
                 if k_ == 5:
                     os.kill(os.getpid(), signal.SIGTERM)
             return real(*a, **{**k, "progress": progress})
-        springsim.driver.simulate = simulate
+        springsim.run.driver.simulate = simulate
         sys.exit(cli.main(["run", "scene.yaml", "--out", "out.npz"]))
     """, tmp_path)
     assert r.returncode == 143 and "terminated" in r.stderr and "Traceback" not in r.stderr, r.stderr
@@ -492,8 +492,8 @@ def test_small_max_step_names_the_option(scene, capsys):
     """--max-step below the adaptive driver's smallest step names --max-step (not the internal h_min)."""
     import inspect
 
-    from springsim.adaptive import simulate_adaptive
-    from springsim.options import ADAPTIVE_H_MIN
+    from springsim.run.adaptive import simulate_adaptive
+    from springsim.run.options import ADAPTIVE_H_MIN
 
     assert inspect.signature(simulate_adaptive).parameters["h_min"].default == ADAPTIVE_H_MIN
     line = _one_line_error(capsys, "run", scene, "--integrator", "tr_bdf2", "--time-rtol", "1e-3",

@@ -10,7 +10,7 @@ import pytest
 from helpers import damped_chain
 from springsim import simulate
 from springsim.assembly import dense_system
-from springsim.energy import total_energy
+from springsim.run.energy import total_energy
 from springsim.forces import eval_forces, make_force_terms
 from springsim.integrators import INTEGRATORS, StepStats, make_integrator
 from springsim.scene import benchmark_cloth

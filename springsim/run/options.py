@@ -20,7 +20,7 @@ import importlib
 import math
 from dataclasses import dataclass, field, fields, replace
 
-from .errors import SceneError, SceneTypeError, check_choice
+from ..errors import SceneError, SceneTypeError, check_choice
 
 __all__ = ["ADAPTIVE_H_MIN", "BACKENDS", "MAX_STEPS", "DEFAULT_STEPS", "SolverConfig", "option", "describe_int", "steps_for_duration"]
 
@@ -33,7 +33,7 @@ BACKENDS = ("serial", "petsc")
 #: Run length used when neither the scene nor the caller gives one.
 DEFAULT_STEPS = 100
 
-#: Smallest step of adaptive runs (the ``h_min`` default of :func:`springsim.adaptive.simulate_adaptive`):
+#: Smallest step of adaptive runs (the ``h_min`` default of :func:`springsim.run.adaptive.simulate_adaptive`):
 #: the lower bound of ``max_step``.
 ADAPTIVE_H_MIN = 1e-7
 
@@ -236,10 +236,10 @@ class SolverConfig:
             setattr(self, f.name, _check(f, getattr(self, f.name), f"solver.{self.yaml_key(f.name)}"))
         if self.steps is not None and self.duration is not None:
             raise SceneError("solver", "give steps or duration, not both")
-        from .forces import JACOBIAN_MODES
-        from .integrators import integrator_class
-        from .integrators._implicit import FORCING_RULES, STAGE_SOLVERS
-        from .linsolve import linear_solver_class
+        from ..forces import JACOBIAN_MODES
+        from ..integrators import integrator_class
+        from ..integrators._implicit import FORCING_RULES, STAGE_SOLVERS
+        from ..linsolve import linear_solver_class
 
         for name, check in (("integrator", integrator_class), ("linear_solver", linear_solver_class)):
             value = getattr(self, name)
@@ -251,7 +251,7 @@ class SolverConfig:
         def partitioners():
             # by module path, and only when asked for: the distributed package's lazy names (its driver) import
             # the drivers, which import this module; the partition module itself does not
-            return importlib.import_module(".distributed.partition", __package__).PARTITIONERS
+            return importlib.import_module("..distributed.partition", __package__).PARTITIONERS
 
         for name, what, allowed in (("backend", "backend", lambda: BACKENDS),
                                     ("partitioner", "partitioner", partitioners),
@@ -387,7 +387,7 @@ class SolverConfig:
         """Fields that are set but have no effect on this run (the YAML keys): Newton options of integrators
         without Newton iterations, the options the built ``integrator``'s stage rule does not use, ``max_step``
         without adaptive stepping."""
-        from .integrators import integrator_class
+        from ..integrators import integrator_class
 
         skip = integrator_class(self.integrator).unused_options
         if integrator is not None and hasattr(integrator, "ignored_options"):

@@ -1,11 +1,11 @@
 """Simulation driver: step an integrator, record frames, stop cleanly, report once.
 
-:func:`simulate` runs fixed steps; :func:`springsim.adaptive.simulate_adaptive` chooses
+:func:`simulate` runs fixed steps; :func:`springsim.run.adaptive.simulate_adaptive` chooses
 them from an error estimate. Both use :class:`RunRecorder`, which gives them the same
 guarantees:
 
 * **Blow-up.** After every step the new state is checked for NaN/inf and against the
-  energy bound of :class:`springsim.energy.EnergyBound` (a finite state that holds more
+  energy bound of :class:`springsim.run.energy.EnergyBound` (a finite state that holds more
   energy than the forces can supply). On either, :class:`~springsim.errors.SimulationError`
   names the step and carries the frames computed before it (``err.trajectory``).
 * **Failed solves.** A :class:`~springsim.errors.SpringsimError` from the integrator
@@ -34,22 +34,22 @@ from typing import Callable
 
 import numpy as np
 
-from ._npz import read_trajectory_npz
-from ._atomic import _new_file_mode, _target, check_output_path, save_npz_atomic  # noqa: F401 (re-exported)
+from .._atomic import _new_file_mode, _target, check_output_path, save_npz_atomic  # noqa: F401 (re-exported)
+from .._npz import read_trajectory_npz
+from .._runtime.threads import single_blas_thread
+from ..errors import (ConvergenceWarning, EnergyGrowthWarning, FallbackWarning, SimulationError,
+                      SimulationInterrupted, SpringsimError)
+from ..integrators import Integrator, StepStats
+from ..model import Model, State
 from .energy import EnergyBound
-from .errors import (ConvergenceWarning, EnergyGrowthWarning, FallbackWarning, SimulationError, SimulationInterrupted,
-                     SpringsimError)
-from .integrators import Integrator, StepStats
-from .model import Model, State
-from ._runtime.threads import single_blas_thread
 from .options import MAX_STEPS, describe_int
 from .progress import as_progress
 
 __all__ = ["Trajectory", "TRAJECTORY_FORMAT", "TRAJECTORY_FORMAT_VERSION", "run_metadata", "simulate", "SimulationInterrupted", "save_npz_atomic", "check_output_path",
            "RunRecorder", "steps_for_duration", "MAX_STEPS"]
 
-#: Energy rise over a run, in units of the start's energy scale (:class:`springsim.energy.EnergyBound`), above which a
-#: conservative or damped scene is reported as unstable (:meth:`RunRecorder.check_energy_growth`).
+#: Energy rise over a run, in units of the start's energy scale (:class:`springsim.run.energy.EnergyBound`), above
+#: which a conservative or damped scene is reported as unstable (:meth:`RunRecorder.check_energy_growth`).
 ENERGY_GROWTH = 1e-2
 
 #: ``meta["format"]`` of a saved trajectory, and the layout version this springsim writes.
@@ -75,7 +75,7 @@ class Trajectory:
         CPU time of the process during the stepping loop [s].
     adaptive_stats : dict or None
         Step-size controller statistics of an adaptive run (see
-        :func:`springsim.adaptive.simulate_adaptive`).
+        :func:`springsim.run.adaptive.simulate_adaptive`).
     meta : dict
         How the frames were made, JSON-serialisable (saved with them): ``springsim_version``,
         ``model_fingerprint`` (:meth:`springsim.Model.fingerprint`), ``scene`` and ``source``
@@ -228,7 +228,7 @@ def _check_integrator(model, integrator) -> None:
 # -- the shared run machinery --------------------------------------------------------------------
 def run_metadata(model, integrator) -> dict:
     """The part of :attr:`Trajectory.meta` that the model and the integrator determine."""
-    from . import __version__
+    from .. import __version__
 
     solver = getattr(integrator, "solver", None)
     backend = integrator.system.metadata()
@@ -252,7 +252,7 @@ class RunRecorder:
     state : State or None
         Initial state (copied and converted to float64), default ``model.state()``.
     check_energy : bool
-        Apply the energy bound of :class:`springsim.energy.EnergyBound` after every step.
+        Apply the energy bound of :class:`springsim.run.energy.EnergyBound` after every step.
     """
 
     def __init__(self, model, integrator, state=None, *, check_energy: bool = True):
@@ -433,7 +433,7 @@ def simulate(model: Model, integrator: Integrator, dt: float, steps: int, *, sta
         If False, keep only the initial and final frames (large scenes).
     progress : callable(step, steps) or True, optional
         Called after every step; True logs a line every few seconds with the time left
-        (:class:`springsim.progress.ProgressLog`, logger ``springsim``).
+        (:class:`springsim.run.progress.ProgressLog`, logger ``springsim``).
     check_energy : bool
         Stop when a finite state holds more energy than the forces can supply (module docstring).
 

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .forces import make_force_terms
+from ..forces import make_force_terms
 
 __all__ = ["kinetic_energy", "potential_energy", "total_energy", "EnergyBound"]
 

@@ -22,9 +22,9 @@ loop that uses it). A rejected step is retried from the same state (the
 multistep history is reused, see :class:`~springsim.integrators.bdf2.StepHistory`).
 A failed attempt (a step that is not ``StepStats.ok``: Newton missed its limit, a linear
 solve failed, the matrix lost the masses; a :class:`~springsim.errors.SolverError`; a
-blow-up by NaN/inf or the energy bound of :mod:`springsim.energy`) is retried with ``h/4``.
+blow-up by NaN/inf or the energy bound of :mod:`springsim.run.energy`) is retried with ``h/4``.
 Failing at ``h_min``, or missing the tolerance there, raises :class:`~springsim.errors.SimulationError`
-with the frames so far, as a fixed-step run does (:mod:`springsim.driver`): a step is never accepted
+with the frames so far, as a fixed-step run does (:mod:`springsim.run.driver`): a step is never accepted
 with an error above the tolerance.
 
 Output frames at the requested times come from cubic Hermite interpolation of ``q`` between
@@ -40,11 +40,11 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ._runtime.threads import single_blas_thread
+from .._runtime.threads import single_blas_thread
+from ..errors import SceneError, SimulationError, SpringsimError
+from ..integrators import INTEGRATORS, Integrator, StepStats, make_integrator
+from ..model import Model, State
 from .driver import RunRecorder, Trajectory
-from .errors import SceneError, SimulationError, SpringsimError
-from .integrators import INTEGRATORS, Integrator, StepStats, make_integrator
-from .model import Model, State
 from .options import ADAPTIVE_H_MIN
 from .progress import as_progress
 
@@ -349,7 +349,7 @@ def simulate_adaptive(model: Model, integrator: str | Integrator, t_end: float, 
         Limit on attempted steps.
     progress : callable(t, t_end) or True, optional
         Called after each accepted step; True logs a line every few seconds with the time left
-        (:class:`springsim.progress.ProgressLog`, logger ``springsim``).
+        (:class:`springsim.run.progress.ProgressLog`, logger ``springsim``).
     **integrator_options
         Passed to :func:`~springsim.integrators.make_integrator` when ``integrator`` is a name
         (``solver``, ``jacobian``, ``newton_tol``, ...).
