@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 import springsim as ss
-from springsim.viz import render_frame, render_gif, run_title
+from springsim.io.viz import render_frame, render_gif, run_title
 
 WIDTH = 0.6  # distance of the held corners [m]; the cloth is 1 m wide
 WAVES = 3    # pleats across the cloth at the start

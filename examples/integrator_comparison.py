@@ -56,7 +56,7 @@ def main(argv=None):
     for name, err, cpu, status in rows:
         print(f"{name:<20} {err:10.3g} {cpu:9.3f}  {status}")
 
-    from springsim.viz import require_matplotlib
+    from springsim.io.viz import require_matplotlib
 
     Figure = require_matplotlib()
     fig = Figure(figsize=(7.0, 4.5))

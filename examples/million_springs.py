@@ -42,7 +42,7 @@ def main(argv=None):
           f"solve {s['solve_s']:.2f} s), {s['linear_iterations']:.0f} CG iterations per step, "
           f"max relative residual {s['max_linear_residual']:.1e}, {s['failed_steps']} failed steps")
 
-    from springsim.viz import require_matplotlib, run_title
+    from springsim.io.viz import require_matplotlib, run_title
 
     Figure = require_matplotlib()
     fig = Figure(figsize=(6.4, 5.2))

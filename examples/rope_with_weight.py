@@ -49,7 +49,7 @@ def main(argv=None):
     lowest = traj.q[:, -1, 2].min()
     print(f"lowest point of the weight: z = {lowest:.3f} m (the rope stretches below z = 0)")
 
-    from springsim.viz import require_matplotlib, run_title
+    from springsim.io.viz import require_matplotlib, run_title
 
     Figure = require_matplotlib()
     fig = Figure(figsize=(8.0, 4.8))

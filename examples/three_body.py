@@ -54,7 +54,7 @@ def main(argv=None):
         print(f"{name:<16} {err:16.3g} {drift:13.2e} {traj.wall_s:9.2f}")
         runs[name] = traj
 
-    from springsim.viz import require_matplotlib
+    from springsim.io.viz import require_matplotlib
 
     Figure = require_matplotlib()
     fig = Figure(figsize=(6.0, 6.0))

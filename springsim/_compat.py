@@ -27,6 +27,8 @@ MOVED: dict[str, str] = {
     "springsim.options": "springsim.run.options",
     "springsim.progress": "springsim.run.progress",
     "springsim.energy": "springsim.run.energy",
+    "springsim.export": "springsim.io.export",
+    "springsim.viz": "springsim.io.viz",
 }
 
 # Frames that an import passes through on its way to the loader: the import system's, importlib.import_module's,

@@ -1,7 +1,7 @@
 """``springsim export TRAJ.npz SCENE [--format FMT] --out DIR [--every M]``: mesh files of a trajectory.
 
 VTU, legacy VTK and XDMF for ParaView, PLY and OBJ for Blender, written by meshio (the ``mesh``
-extra; :mod:`springsim.export`).
+extra; :mod:`springsim.io.export`).
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ class _ExportCommand:
     help = "export a trajectory .npz to mesh files: VTU, VTK, XDMF (ParaView), PLY, OBJ (Blender)"
 
     def add_arguments(self, p: argparse.ArgumentParser) -> None:
-        from ..export import EXPORT_FORMATS
+        from ..io.export import EXPORT_FORMATS
 
         p.add_argument("trajectory", help="trajectory .npz (springsim run --out)")
         p.add_argument("scene", help="scene YAML the trajectory was computed from")
@@ -30,7 +30,7 @@ class _ExportCommand:
                        help="export every M-th frame, and the last (default 1)")
 
     def run(self, args) -> int:
-        from ..export import export_trajectory, require_meshio
+        from ..io.export import export_trajectory, require_meshio
         from ..scene import load_scene
         from ..scene.shipped import resolve_scene
         from .runner import load_trajectory_for

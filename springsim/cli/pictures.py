@@ -15,8 +15,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from .._atomic import check_output_path
 from ..errors import SceneError, SimulationError, SimulationInterrupted, SpringsimError
+from ..io._atomic import check_output_path
 from .argtypes import int_at_least
 from .runner import add_run_options, execute, load_and_configure, load_trajectory_for, warn_failed_steps
 from .session import _Exit, _stopped_by, interrupt_status
@@ -49,7 +49,7 @@ class _PlotCommand:
         p.add_argument("--out", help="output PNG (default <scene>_plot.png)")
 
     def run(self, args) -> int:
-        from ..viz import plot_dof, require_matplotlib, run_title
+        from ..io.viz import plot_dof, require_matplotlib, run_title
 
         require_matplotlib()
         out = args.out if args.out else f"{Path(args.scene).stem}_plot.png"  # a str: Path() drops a trailing "/"
@@ -78,7 +78,7 @@ class _RenderCommand:
 
     def run(self, args) -> int:
         from ..scene import load_scene
-        from ..viz import render_frame, render_gif, require_matplotlib, run_title
+        from ..io.viz import render_frame, render_gif, require_matplotlib, run_title
 
         require_matplotlib()
         out = args.out  # a str: Path() drops a trailing "/"

@@ -444,7 +444,7 @@ def load_trajectory_for(path, scene, scene_path):
     SpringsimError
         Another particle count, or no frames.
     """
-    from .._npz import npz_headers
+    from ..io._npz import npz_headers
     from ..run.driver import Trajectory
 
     q = npz_headers(path).get("q")

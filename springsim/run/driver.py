@@ -34,12 +34,12 @@ from typing import Callable
 
 import numpy as np
 
-from .._atomic import _new_file_mode, _target, check_output_path, save_npz_atomic  # noqa: F401 (re-exported)
-from .._npz import read_trajectory_npz
 from .._runtime.threads import single_blas_thread
 from ..errors import (ConvergenceWarning, EnergyGrowthWarning, FallbackWarning, SimulationError,
                       SimulationInterrupted, SpringsimError)
 from ..integrators import Integrator, StepStats
+from ..io._atomic import _new_file_mode, _target, check_output_path, save_npz_atomic  # noqa: F401 (re-exported)
+from ..io._npz import read_trajectory_npz
 from ..model import Model, State
 from .energy import EnergyBound
 from .options import MAX_STEPS, describe_int
@@ -129,7 +129,7 @@ class Trajectory:
             One line naming the file when it is missing, not a springsim ``.npz``, truncated
             or corrupt, its arrays do not fit together or would not fit in memory, or its ``meta``
             is not a JSON object of this format. The array headers are checked before any data
-            is read (:mod:`springsim._npz`), so this takes bounded time and memory.
+            is read (:mod:`springsim.io._npz`), so this takes bounded time and memory.
         """
         t, q, qd, meta = read_trajectory_npz(path, format_name=TRAJECTORY_FORMAT,
                                              format_version=TRAJECTORY_FORMAT_VERSION)

@@ -14,7 +14,7 @@ from springsim import cli
 from springsim.model.builder import ModelBuilder
 from springsim.run.driver import Trajectory
 from springsim.errors import SpringsimError
-from springsim.export import EXPORT_FORMATS, cloth_quads, export_trajectory
+from springsim.io.export import EXPORT_FORMATS, cloth_quads, export_trajectory
 from springsim.scene import benchmark_cloth
 
 SCENES = Path(__file__).resolve().parents[2] / "scenes"

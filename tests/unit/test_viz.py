@@ -14,7 +14,7 @@ from springsim.run.driver import Trajectory, simulate
 from springsim.errors import SpringsimError
 from springsim.integrators import make_integrator
 from springsim.scene import benchmark_cloth
-from springsim.viz import plot_dof, render_frame, render_gif, require_matplotlib
+from springsim.io.viz import plot_dof, render_frame, render_gif, require_matplotlib
 
 PNG = b"\x89PNG\r\n\x1a\n"
 SCENES = Path(__file__).resolve().parents[2] / "scenes"
@@ -75,7 +75,7 @@ def test_render_gif(cloth_run, tmp_path):
 
 def test_run_title_names_integrator_and_step(cloth_run):
     """Titles come from the trajectory's metadata: integrator and h, or the adaptive tolerance."""
-    from springsim.viz import run_title
+    from springsim.io.viz import run_title
 
     m, tr = cloth_run
     assert run_title(tr) == "benchmark_cloth_5: implicit_euler, h = 0.01667 s"
@@ -148,7 +148,7 @@ def test_render_keeps_a_scenes_own_springs_beside_a_cloth(tmp_path):
     """A weight hung from a cloth corner is drawn on its spring: the cloth is a surface, every other spring a line."""
     from mpl_toolkits.mplot3d.art3d import Line3DCollection
 
-    from springsim.viz import _axes, _draw, springs_outside_grids
+    from springsim.io.viz import _axes, _draw, springs_outside_grids
 
     b = ModelBuilder()
     grid = b.add_cloth_grid(4, 4, pin="top")

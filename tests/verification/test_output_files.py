@@ -393,7 +393,7 @@ def test_empty_trajectory_and_unknown_picture_format(tmp_path, capsys):
     assert "no frames" in _one_line_error(capsys, "export", f, SPRING, "--out", tmp_path / "out")
     assert "no frames" in _one_line_error(capsys, "render", f, "--scene", SPRING, "--out", tmp_path / "x.png")
     from springsim.scene import load_scene
-    from springsim.viz import render_frame
+    from springsim.io.viz import render_frame
 
     m = load_scene(SPRING).model
     with pytest.raises(SpringsimError, match=r"unknown picture extension \.xyz.*\.png"):

@@ -3,7 +3,7 @@
 matplotlib is an optional extra (``pip install 'springsim[plot]'``) imported only
 when a function here is called. Figures are standalone ``matplotlib.figure.Figure``
 objects, so no backend, display or ``MPLBACKEND`` setting is needed, and pyplot's state is
-left alone. Pictures are written atomically (:func:`springsim._atomic.write_atomic`): a failed or
+left alone. Pictures are written atomically (:func:`springsim.io._atomic.write_atomic`): a failed or
 interrupted render leaves the previous file as it was; the directory must exist. Springs are drawn as line segments (one ``Line3DCollection``), a cloth grid
 (``model.cloth_grids``) as a shaded surface (its own springs are the surface; every other
 spring stays a line), free particles as dots and fixed ones as black squares.
@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import SpringsimError
-from .model.topology import springs_outside_grids
+from ..errors import SpringsimError
+from ..model.topology import springs_outside_grids
 
 __all__ = ["plot_dof", "render_frame", "render_gif", "require_matplotlib", "run_title", "springs_outside_grids",
            "DOF_NAMES"]
@@ -93,7 +93,8 @@ def plot_dof(traj, particle_id: int, dof, y_range=None, out_png=None, *, title: 
 
 
 def _save_figure(fig, out, dpi) -> Path:
-    """Save ``fig`` to ``out`` atomically (:func:`springsim._atomic.write_atomic`), in the format its extension names."""
+    """Save ``fig`` to ``out`` atomically (:func:`springsim.io._atomic.write_atomic`), in the format its extension
+    names."""
     from ._atomic import write_atomic
 
     ext = Path(out).suffix.lower()[1:]

@@ -23,7 +23,7 @@ data where the format holds it. Formats (:data:`EXPORT_FORMATS`):
     meshio); a scene without a cloth has nothing to write and is refused.
 
 Every file is written to a temporary name in the output directory, fsync'ed and renamed into
-place (:func:`springsim._atomic.write_atomic`, as for trajectories), so no file is ever
+place (:func:`springsim.io._atomic.write_atomic`, as for trajectories), so no file is ever
 half-written; a new file gets ``0o666`` less the umask, a replaced one keeps its mode. See ``docs/file-formats.md``.
 """
 
@@ -35,10 +35,10 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..errors import SpringsimError
+from ..model.topology import cloth_quads as grid_quads
+from ..model.topology import springs_outside_grids
 from ._atomic import write_atomic
-from .errors import SpringsimError
-from .model.topology import cloth_quads as grid_quads
-from .model.topology import springs_outside_grids
 
 __all__ = ["EXPORT_FORMATS", "ExportFormat", "cloth_quads", "export_trajectory", "require_meshio"]
 
@@ -104,7 +104,7 @@ def cloth_quads(model) -> np.ndarray:
 
 
 def _atomic(path: Path, write) -> Path:
-    """Write ``path`` atomically with ``write(tmp)`` (:func:`springsim._atomic.write_atomic`: the same rule for the
+    """Write ``path`` atomically with ``write(tmp)`` (:func:`springsim.io._atomic.write_atomic`: the same rule for the
     file mode as trajectories, ``0o666`` less the umask for a new file)."""
     write_atomic(path, write)
     return path

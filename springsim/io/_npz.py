@@ -17,7 +17,7 @@ import zlib
 
 import numpy as np
 
-from .errors import SpringsimError
+from ..errors import SpringsimError
 
 __all__ = ["MAX_META_BYTES", "NpyHeader", "npz_headers", "read_trajectory_npz"]
 
@@ -118,7 +118,7 @@ def _check_headers(path: str, h: dict[str, NpyHeader]) -> None:
 
 
 def _check_memory(path: str, h: dict[str, NpyHeader]) -> None:
-    from .scene import yaml_io
+    from ..scene import yaml_io
 
     # t, q and qd as float64, plus the array being read before its conversion
     need = sum(math.prod(h[n].shape) * 8 for n in ("t", "q")) + math.prod(h["q"].shape) * 8

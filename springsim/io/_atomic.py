@@ -17,7 +17,7 @@ import stat
 import tempfile
 from typing import Callable
 
-from .errors import SpringsimError
+from ..errors import SpringsimError
 
 __all__ = ["check_output_path", "save_npz_atomic", "write_atomic"]
 
