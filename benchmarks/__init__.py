@@ -9,7 +9,7 @@ Cases come from :mod:`springsim.scene.gallery` (the benchmark cloth and the accu
 shipped scenes; energies and spectral estimates from the library (:mod:`springsim.run.energy`,
 :mod:`springsim.analysis`); tables, CSV files and plots are written by :mod:`benchmarks.common` into
 ``benchmarks/results/`` (git-ignored). Every benchmark reports speed together with an error, measured
-against a reference of the ODE (:mod:`springsim.reference`) or, for linear solves, the direct
+against a reference of the ODE (:mod:`springsim.analysis.reference`) or, for linear solves, the direct
 solution. Their smoke tests (``tests/unit/test_benchmarks.py`` and friends) run them at tiny sizes
 under the ``slow`` marker, which CI runs.
 """

@@ -94,7 +94,7 @@ def _model_key(model, t_end: float, method: str, rtol: float) -> str:
 
 
 def reference_final(case: Case, *, method: str = "auto", rtol: float = 1e-10, cache: bool = True):
-    """Reference state at ``case.horizon`` from :func:`springsim.reference.reference_trajectory`.
+    """Reference state at ``case.horizon`` from :func:`springsim.analysis.reference.reference_trajectory`.
 
     ``method="auto"`` uses Radau (implicit, sparse Jacobian) up to 600 DOFs and DOP853
     above (the benchmark cloths are only mildly stiff; the two agree to ~1e-14 m on the
@@ -108,7 +108,7 @@ def reference_final(case: Case, *, method: str = "auto", rtol: float = 1e-10, ca
         Wall time of the reference solve (0 when cached).
     method : str
     """
-    from springsim.reference import reference_trajectory
+    from springsim.analysis.reference import reference_trajectory
 
     if method == "auto":
         method = "Radau" if 3 * case.model.free_particles.size <= 600 else "DOP853"

@@ -16,7 +16,7 @@ then first order in the damping force, which its floor reports):
    frame; the finest level is the reference. Its convergence is reported as the largest difference
    between consecutive levels (RMS over particles, max over frames) and the median over frames of the
    ratio of consecutive differences (4 for second order). At sizes up to ``--cross-check-max-n`` the
-   finest level is also compared with :func:`springsim.reference.reference_trajectory` (scipy
+   finest level is also compared with :func:`springsim.analysis.reference.reference_trajectory` (scipy
    ``solve_ivp``: Radau with the sparse Jacobian up to 600 DOFs, DOP853 above, rtol 1e-10). The
    reference's **floor** is the larger of the two finest levels' difference and that cross-check
    difference: an error below it is not reported as a number but as ``< floor``, and a floor at or

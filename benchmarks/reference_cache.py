@@ -13,7 +13,7 @@ differences shrink level by level (about 4x per halving for a second-order metho
 is smooth; on a buckling cloth they can stall at the amplified round-off and
 truncation noise, which is exactly what the floor reports).
 
-:func:`reference_frames` also runs :func:`springsim.reference.reference_trajectory` (scipy ``solve_ivp``:
+:func:`reference_frames` also runs :func:`springsim.analysis.reference.reference_trajectory` (scipy ``solve_ivp``:
 Radau with the sparse Jacobian, or DOP853, at rtol 1e-10), a code with no stepping in common, to
 cross-check the Verlet reference where that is affordable.
 
@@ -148,7 +148,8 @@ class ExplicitRun(VerletRun):
         return self.s0.is_finite()
 
 
-#: ``solve_ivp`` methods :func:`reference_frames` accepts (through :func:`springsim.reference.reference_trajectory`).
+#: ``solve_ivp`` methods :func:`reference_frames` accepts (through
+#: :func:`springsim.analysis.reference.reference_trajectory`).
 SOLVE_IVP_METHODS = ("Radau", "BDF", "LSODA", "DOP853", "RK45")
 
 
@@ -165,7 +166,7 @@ def reference_frames(model, method: str, substeps: int, frames: int, *, frame_dt
     """Positions at every frame of ``method`` at ``substeps`` per frame.
 
     ``method``: ``verlet`` (:class:`VerletRun`), a registered explicit springsim integrator, or one of
-    :data:`SOLVE_IVP_METHODS` (``substeps`` is then ignored: :func:`springsim.reference.reference_trajectory`
+    :data:`SOLVE_IVP_METHODS` (``substeps`` is then ignored: :func:`springsim.analysis.reference.reference_trajectory`
     at ``rtol``, ``atol``).
 
     Returns
@@ -175,7 +176,7 @@ def reference_frames(model, method: str, substeps: int, frames: int, *, frame_dt
         at the last frame, ``finite``, ``cpu_s`` and ``wall_s`` of the stepping.
     """
     if method in SOLVE_IVP_METHODS:
-        from springsim.reference import reference_trajectory
+        from springsim.analysis.reference import reference_trajectory
 
         c0, w0 = time.process_time(), time.perf_counter()
         tr = reference_trajectory(model, np.arange(frames + 1) * frame_dt, method=method, rtol=rtol, atol=atol)

@@ -2,7 +2,7 @@
 
 For each case (benchmark cloths n = 8, 16, 32 and the shipped scenes spring,
 stiff damped chain, three-body; ``scenes/*.yaml``) the final state after ``horizon`` seconds is compared
-with an independent ``solve_ivp`` reference (:func:`springsim.reference.reference_trajectory`,
+with an independent ``solve_ivp`` reference (:func:`springsim.analysis.reference.reference_trajectory`,
 rtol 1e-10). Four sweeps:
 
 ``dt``

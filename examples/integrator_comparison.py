@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 import springsim as ss
-from springsim.reference import reference_trajectory
+from springsim.analysis.reference import reference_trajectory
 from springsim.scene.gallery import accuracy_cloth
 
 

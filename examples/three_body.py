@@ -22,7 +22,7 @@ import numpy as np
 
 import springsim as ss
 from springsim.run.energy import total_energy
-from springsim.reference import reference_trajectory
+from springsim.analysis.reference import reference_trajectory
 
 
 def build() -> ss.Model:

@@ -29,6 +29,7 @@ MOVED: dict[str, str] = {
     "springsim.energy": "springsim.run.energy",
     "springsim.export": "springsim.io.export",
     "springsim.viz": "springsim.io.viz",
+    "springsim.reference": "springsim.analysis.reference",
 }
 
 # Frames that an import passes through on its way to the loader: the import system's, importlib.import_module's,

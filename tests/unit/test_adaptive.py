@@ -5,7 +5,7 @@ import pytest
 
 from springsim import ModelBuilder, SceneError, make_integrator, simulate
 from springsim.run.adaptive import hermite_frame, simulate_adaptive
-from springsim.reference import reference_trajectory
+from springsim.analysis.reference import reference_trajectory
 
 
 def _oscillator():

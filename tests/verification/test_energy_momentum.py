@@ -177,7 +177,7 @@ def test_step_doubling_estimate_is_asymptotically_exact():
     """Against a Radau solution of the ODE, the estimate's mismatch with the true local error (of the returned
     two-half-step result) is under 5 % at h = 0.02 s and shrinks with h (measured 2.6-3.8x per halving; the local
     error itself goes like h^3), for springs, gravitational pairs, damping and drag."""
-    from springsim.reference import reference_trajectory
+    from springsim.analysis.reference import reference_trajectory
 
     model = random_scene(np.random.default_rng(7404), damping=True, drag=True, speed=0.5)
     mismatch = []

@@ -8,7 +8,7 @@ from helpers import random_scene
 
 from springsim import make_integrator
 from springsim.integrators import StepStats
-from springsim.reference import reference_trajectory
+from springsim.analysis.reference import reference_trajectory
 from springsim.scene.gallery import benchmark_cloth
 
 

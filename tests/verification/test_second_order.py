@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from springsim import ModelBuilder, make_integrator, simulate
-from springsim.reference import reference_trajectory
+from springsim.analysis.reference import reference_trajectory
 from springsim.scene.gallery import benchmark_cloth
 
 T_END = 0.25

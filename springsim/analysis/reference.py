@@ -15,9 +15,9 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.integrate import solve_ivp
 
-from .assembly import SystemAssembler
-from .run.driver import Trajectory
-from .forces import eval_forces, make_force_terms
+from ..assembly import SystemAssembler
+from ..forces import eval_forces, make_force_terms
+from ..run.driver import Trajectory
 
 __all__ = ["reference_trajectory"]
 
