@@ -51,10 +51,10 @@ from pathlib import Path
 import numpy as np
 
 from springsim import ModelBuilder, make_integrator, simulate
-from springsim.cli.argtypes import positive_float
-from springsim.run.adaptive import simulate_adaptive
-from springsim.integrators import ImplicitIntegrator, StepStats
 from springsim.analysis.reference import reference_trajectory
+from springsim.cli.argtypes import positive_float
+from springsim.integrators import ImplicitIntegrator, StepStats
+from springsim.run.adaptive import simulate_adaptive
 from springsim.run.energy import total_energy
 from springsim.scene.gallery import accuracy_cloth
 

@@ -47,8 +47,8 @@ def measure(n: int, ke: float, *, frames: int, force_kernels: str = "auto", wind
             max_steps: int = 2000, log=print) -> dict:
     """One row of :data:`COLUMNS` for ``benchmark_cloth(n, stiffness=ke)`` (module docstring)."""
     from springsim.assembly import SystemAssembler
-    from springsim.run.energy import total_energy
     from springsim.forces import make_force_terms
+    from springsim.run.energy import total_energy
 
     model = frame_cost.cloth(n, ke)
     terms = make_force_terms(model)  # for the assembler and the energies

@@ -20,8 +20,8 @@ import time
 import warnings
 
 from . import accuracy as acc
-from springsim.run.driver import simulate
 from springsim.integrators import make_integrator
+from springsim.run.driver import simulate
 
 HEADER = ["n", "method", "solver", "jacobian", "escalate", "escalate_after", "steps", "cpu_per_step_s", "newton_per_step",
           "krylov_per_step", "steps_at_limit", "fallbacks", "escalations", "rms_error_m"]

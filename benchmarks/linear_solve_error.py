@@ -44,9 +44,9 @@ def step_systems(n: int, *, warm_steps: int = 5, dt: float = 1 / 60):
         Jacobian mode -> a function assembling the matrix over free DOFs (the assembler's
         persistent matrix, so call it again before every use) and the right-hand side [N s].
     """
-    from springsim.run.driver import simulate
     from springsim.forces import JACOBIAN_MODES, eval_forces
     from springsim.integrators import make_integrator
+    from springsim.run.driver import simulate
     from springsim.scene import benchmark_cloth
 
     model = benchmark_cloth(n)

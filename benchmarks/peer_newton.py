@@ -294,8 +294,8 @@ def stable(engine, model, substeps: int, *, window: float, max_steps: int | None
     -------
     bool
     """
-    from springsim.run.energy import total_energy
     from springsim.forces import make_force_terms
+    from springsim.run.energy import total_energy
 
     h = frame_dt / substeps
     steps = max(1, int(round(window / h)))

@@ -48,8 +48,8 @@ def time_steps(n: int, *, solver: str, integrator: str = "linearized_implicit", 
     Returns a result row: ``setup_s`` covers the integrator construction and the warm-up
     steps; ``step_s``, ``assembly_s``, ``solve_s`` are medians over the timed steps [s].
     """
-    from springsim.run.driver import simulate
     from springsim.integrators import make_integrator
+    from springsim.run.driver import simulate
     from springsim.scene import benchmark_cloth
 
     model = benchmark_cloth(n)

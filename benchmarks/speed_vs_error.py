@@ -61,8 +61,8 @@ from pathlib import Path
 
 import numpy as np
 
-from springsim.run.energy import total_energy
 from springsim.integrators import INTEGRATORS
+from springsim.run.energy import total_energy
 
 from .common import (RESULTS_DIR, SCENE_NAMES, benchmark_case, fit_order, markdown_table, position_errors,
                      pyplot, reference_final, save_figure, scene_case, write_csv)
@@ -129,11 +129,11 @@ def _run(case, ref_q, e_ref_drift, integrator: str, dt: float | None, *, sweep: 
     accepted step, ``steps`` the accepted and ``rejected`` the rejected steps, and the Newton and
     linear iterations per step count every attempt (rejected ones too) per accepted step.
     """
-    from springsim.run.adaptive import simulate_adaptive
-    from springsim.run.driver import simulate
     from springsim.errors import SimulationError, SolverError
     from springsim.forces import make_force_terms
     from springsim.integrators import make_integrator
+    from springsim.run.adaptive import simulate_adaptive
+    from springsim.run.driver import simulate
 
     model = case.model
     adaptive = time_rtol is not None

@@ -21,8 +21,8 @@ from pathlib import Path
 import numpy as np
 
 import springsim as ss
-from springsim.run.energy import total_energy
 from springsim.analysis.reference import reference_trajectory
+from springsim.run.energy import total_energy
 
 
 def build() -> ss.Model:

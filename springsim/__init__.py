@@ -16,8 +16,8 @@ from typing import TYPE_CHECKING
 
 from .errors import (ConvergenceWarning, FallbackWarning, SceneError, SceneTypeError, SimulationError,
                      SimulationInterrupted, SolverError, SpringsimError, SpringsimWarning)
-from ._runtime import accel as _accel  # noqa: F401  (sets NUMBA_CACHE_DIR to a user cache before numba is imported)
 from . import _compat
+from ._runtime import accel as _accel  # noqa: F401  (sets NUMBA_CACHE_DIR to a user cache before numba is imported)
 
 _compat.install()  # the former paths of moved modules (``springsim.driver``, ...) keep importing, with a warning
 

@@ -11,8 +11,8 @@ import functools
 import numpy as np
 
 from springsim import ModelBuilder
-from springsim.forces import eval_forces
 from springsim.analysis.reference import reference_trajectory
+from springsim.forces import eval_forces
 
 __all__ = ["PENDULUM_YAML", "random_scene", "internal", "conservative", "two_particle_scene", "damped_chain", "fd_jacobians", "rel_err", "observed_errors",
            "run_cli", "one_line_error"]

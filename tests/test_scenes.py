@@ -5,8 +5,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from springsim.run.driver import simulate
 from springsim.integrators import make_integrator
+from springsim.run.driver import simulate
 from springsim.scene import load_scene
 
 SCENES = Path(__file__).resolve().parents[1] / "scenes"

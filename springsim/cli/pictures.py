@@ -77,8 +77,8 @@ class _RenderCommand:
         p.add_argument("--fps", type=int_at_least(1, 1000), default=20, help="GIF frames per second (default 20)")
 
     def run(self, args) -> int:
-        from ..scene import load_scene
         from ..io.viz import render_frame, render_gif, require_matplotlib, run_title
+        from ..scene import load_scene
 
         require_matplotlib()
         out = args.out  # a str: Path() drops a trailing "/"

@@ -13,9 +13,9 @@ from __future__ import annotations
 
 import time
 
-from ..run.driver import simulate
 from ..integrators import make_integrator
 from ..linsolve import DEFAULT_RTOL
+from ..run.driver import simulate
 from .system import DistributedSystem
 
 __all__ = ["simulate_distributed", "make_distributed"]

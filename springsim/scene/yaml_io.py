@@ -42,12 +42,12 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from ..model.builder import COEFFICIENT_ALIASES, ModelBuilder
 from ..errors import SceneError
 from ..forces._data import data_terms, term_group
-from ..run.options import SolverConfig
 from ..model import AXES, Model
+from ..model.builder import COEFFICIENT_ALIASES, ModelBuilder
 from ..model.topology import pin_mask
+from ..run.options import SolverConfig
 from .gallery import BENCHMARK_DT, benchmark_cloth_grid
 
 __all__ = ["Scene", "PlotSpec", "load_scene", "parse_scene",

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from springsim.run.driver import simulate
 from springsim.integrators import make_integrator
+from springsim.run.driver import simulate
 from springsim.scene.gallery import BENCHMARK_DT, benchmark_cloth
 
 

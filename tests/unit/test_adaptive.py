@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from springsim import ModelBuilder, SceneError, make_integrator, simulate
-from springsim.run.adaptive import hermite_frame, simulate_adaptive
 from springsim.analysis.reference import reference_trajectory
+from springsim.run.adaptive import hermite_frame, simulate_adaptive
 
 
 def _oscillator():

@@ -121,8 +121,8 @@ def test_scaling_quick(bench, tmp_path):
 
 def test_reference_agrees_with_springsim_at_tiny_steps(bench):
     """The solve_ivp reference and TR-BDF2/midpoint at h = 1/4000 s agree on the spring and a 4x4 cloth."""
-    from springsim.run.driver import simulate
     from springsim.integrators import INTEGRATORS, make_integrator
+    from springsim.run.driver import simulate
 
     c = bench["common"]
     name = "tr_bdf2" if "tr_bdf2" in INTEGRATORS else "midpoint"

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from springsim.model.builder import ModelBuilder
 from springsim.errors import SceneError
+from springsim.model.builder import ModelBuilder
 
 
 def _base():

@@ -5,11 +5,11 @@ import os
 import numpy as np
 import pytest
 
-from springsim.model.builder import ModelBuilder
-from springsim.run.energy import EnergyBound
-from springsim.run.driver import SimulationInterrupted, Trajectory, save_npz_atomic, simulate
 from springsim.errors import SimulationError, SolverError, SpringsimError
 from springsim.integrators import Integrator, StepStats, make_integrator
+from springsim.model.builder import ModelBuilder
+from springsim.run.driver import SimulationInterrupted, Trajectory, save_npz_atomic, simulate
+from springsim.run.energy import EnergyBound
 
 
 def _stiff_spring(ke=1e8):
@@ -284,8 +284,8 @@ def test_atomic_write_failure_keeps_previous_file(tmp_path, monkeypatch):
 def test_energy_bound_work_is_kinetic_plus_gravity():
     """The bound's W (computed from a scaled copy of the velocities after every step) is T + V_gravity of
     springsim.run.energy; a NaN velocity is never within the bound."""
-    from springsim.run.energy import kinetic_energy, potential_energy
     from springsim.forces import ForceGravity
+    from springsim.run.energy import kinetic_energy, potential_energy
 
     b = ModelBuilder()
     b.add_cloth_grid(7, 5, pin="top")

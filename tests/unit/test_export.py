@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 
 from springsim import cli
-from springsim.model.builder import ModelBuilder
-from springsim.run.driver import Trajectory
 from springsim.errors import SpringsimError
 from springsim.io.export import EXPORT_FORMATS, cloth_quads, export_trajectory
+from springsim.model.builder import ModelBuilder
+from springsim.run.driver import Trajectory
 from springsim.scene import benchmark_cloth
 
 SCENES = Path(__file__).resolve().parents[2] / "scenes"

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from springsim.assembly import SystemAssembler
-from springsim.model.builder import ModelBuilder
 from springsim.forces import dense_jacobians, make_force_terms
+from springsim.model.builder import ModelBuilder
 
 H = 1.0 / 60.0
 

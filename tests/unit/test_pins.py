@@ -13,12 +13,12 @@ from hypothesis import strategies as st
 
 import springsim as ss
 from springsim import ModelBuilder, SceneError
-from springsim.model.builder import COEFFICIENT_ALIASES
 from springsim.errors import SceneTypeError
 from springsim.model import ClothGrid
+from springsim.model.builder import COEFFICIENT_ALIASES
+from springsim.model.topology import PIN_NAMES, cloth_pin_mask
 from springsim.scene import benchmark_cloth, load_scene
 from springsim.scene.gallery import benchmark_cloth_grid
-from springsim.model.topology import PIN_NAMES, cloth_pin_mask
 
 HEAD = "solver: {type: implicit_euler, timestep: 0.01}\n"
 NX, NY = 4, 3  # local index j*4 + i:  j = 0: 0 1 2 3 | j = 1: 4 5 6 7 | j = 2: 8 9 10 11

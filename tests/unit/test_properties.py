@@ -6,8 +6,8 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from springsim.assembly import SystemAssembler, dense_system_free
-from springsim.model.builder import ModelBuilder
 from springsim.forces import JACOBIAN_MODES, dense_jacobians, eval_forces, make_force_terms
+from springsim.model.builder import ModelBuilder
 
 SETTINGS = settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 

@@ -146,8 +146,8 @@ def test_own_setup_keeps_the_trajectory():
     """springsim's smoothed-aggregation setup (warm-started Lanczos, kept aggregates) against pyamg's (selected by
     a non-empty ``sa_options``) over 10 linearized implicit steps of the 16 x 16 fall (one solve per step, rtol
     1e-10): the same frames to 1e-9 m."""
-    from springsim.run.driver import simulate
     from springsim.integrators import make_integrator
+    from springsim.run.driver import simulate
     from springsim.scene.gallery import BENCHMARK_DT
 
     model = benchmark_cloth(16)

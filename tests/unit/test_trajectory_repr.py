@@ -3,8 +3,8 @@
 import numpy as np
 
 from springsim import ModelBuilder, simulate
-from springsim.run.driver import Trajectory
 from springsim.integrators import make_integrator
+from springsim.run.driver import Trajectory
 
 
 def test_trajectory_repr_is_one_short_line():

@@ -9,12 +9,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from springsim.model.builder import ModelBuilder
-from springsim.run.driver import Trajectory, simulate
 from springsim.errors import SpringsimError
 from springsim.integrators import make_integrator
-from springsim.scene import benchmark_cloth
 from springsim.io.viz import plot_dof, render_frame, render_gif, require_matplotlib
+from springsim.model.builder import ModelBuilder
+from springsim.run.driver import Trajectory, simulate
+from springsim.scene import benchmark_cloth
 
 PNG = b"\x89PNG\r\n\x1a\n"
 SCENES = Path(__file__).resolve().parents[2] / "scenes"

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from springsim import SceneError
-from springsim.scene import PlotSpec, SolverConfig, load_scene, parse_scene
 from springsim.model.topology import cloth_grid_pairs
+from springsim.scene import PlotSpec, SolverConfig, load_scene, parse_scene
 
 HEAD = "solver: {type: implicit_euler, timestep: 0.01}\n"
 TWO = HEAD + "particles:\n  - {pos: [0, 0, 1], mass: 1, fixed: true}\n  - {pos: [0, 0, 0], mass: 2}\n"

@@ -230,8 +230,8 @@ def test_adaptive_run_keeps_the_energy():
 def test_step_doubling_failure_is_reported_without_estimate(monkeypatch):
     """A stage that fails while estimating fails the step (no retake in substeps: the adaptive driver shrinks the
     step) and leaves no estimate; the adaptive driver then retries with a smaller step and finishes."""
-    from springsim.run.adaptive import simulate_adaptive
     from springsim.integrators.energy_momentum import IntegratorEnergyMomentum
+    from springsim.run.adaptive import simulate_adaptive
 
     model = benchmark_cloth(4)
     real = IntegratorEnergyMomentum._substep

@@ -7,8 +7,8 @@ import pytest
 from helpers import random_scene
 
 from springsim import make_integrator
-from springsim.integrators import StepStats
 from springsim.analysis.reference import reference_trajectory
+from springsim.integrators import StepStats
 from springsim.scene.gallery import benchmark_cloth
 
 

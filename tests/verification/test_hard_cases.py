@@ -16,13 +16,13 @@ import numpy as np
 import pytest
 
 from springsim.assembly import SystemAssembler, dense_system_free
-from springsim.model.builder import ModelBuilder
-from springsim.run.driver import simulate
 from springsim.errors import EnergyGrowthWarning, ConvergenceWarning, SceneError, SimulationError
 from springsim.forces import PROJECTED_MODES, JACOBIAN_MODES, dense_jacobians, eval_forces, make_force_terms
-from springsim.run.energy import EnergyBound, total_energy
 from springsim.integrators import INTEGRATORS, PRECISION_LOSS_LIMIT, make_integrator
 from springsim.linsolve import LINEAR_SOLVERS, make_linear_solver
+from springsim.model.builder import ModelBuilder
+from springsim.run.driver import simulate
+from springsim.run.energy import EnergyBound, total_energy
 from springsim.scene.gallery import benchmark_cloth
 
 IMPLICIT = [k for k, c in INTEGRATORS.items() if c.implicit]

@@ -24,12 +24,12 @@ from hypothesis import strategies as st
 
 import springsim
 from springsim import cli
-from springsim.run.adaptive import simulate_adaptive
-from springsim.model.builder import ModelBuilder
-from springsim.run.driver import Trajectory, save_npz_atomic, simulate
 from springsim.errors import SceneError, SceneTypeError, SimulationError, SimulationInterrupted
 from springsim.integrators import make_integrator
 from springsim.linsolve import LINEAR_SOLVERS, make_linear_solver
+from springsim.model.builder import ModelBuilder
+from springsim.run.adaptive import simulate_adaptive
+from springsim.run.driver import Trajectory, save_npz_atomic, simulate
 from springsim.scene import load_scene, yaml_io
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -107,8 +107,8 @@ def test_nonconvergence_is_reported():
     ConvergenceWarning per run from simulate (not one per step), or as SolverError with on_nonconvergence='raise'."""
     import warnings
 
-    from springsim.run.driver import simulate
     from springsim.errors import ConvergenceWarning, SimulationError, SolverError
+    from springsim.run.driver import simulate
 
     model = damped_chain()
     integ = make_integrator("implicit_euler", model, solver="direct", stage_solver="residual", newton_tol=1e-14,

@@ -28,8 +28,8 @@ from helpers import one_line_error, run_cli
 
 import springsim
 from springsim import cli
-from springsim.run.driver import Trajectory
 from springsim.errors import SpringsimError
+from springsim.run.driver import Trajectory
 
 ROOT = Path(__file__).resolve().parents[2]
 SPRING = str(ROOT / "scenes" / "spring.yaml")
@@ -392,8 +392,8 @@ def test_empty_trajectory_and_unknown_picture_format(tmp_path, capsys):
     Trajectory(np.zeros(0), np.zeros((0, 2, 3)), np.zeros((0, 2, 3))).save(f)
     assert "no frames" in _one_line_error(capsys, "export", f, SPRING, "--out", tmp_path / "out")
     assert "no frames" in _one_line_error(capsys, "render", f, "--scene", SPRING, "--out", tmp_path / "x.png")
-    from springsim.scene import load_scene
     from springsim.io.viz import render_frame
+    from springsim.scene import load_scene
 
     m = load_scene(SPRING).model
     with pytest.raises(SpringsimError, match=r"unknown picture extension \.xyz.*\.png"):

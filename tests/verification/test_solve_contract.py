@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from springsim.run.adaptive import simulate_adaptive
-from springsim.model.builder import ModelBuilder
-from springsim.run.driver import simulate
 from springsim.errors import ConvergenceWarning, FallbackWarning, SimulationError, SolverError
 from springsim.integrators import make_integrator
 from springsim.linsolve import LinearSolver, LinearSolveResult, backward_error, make_linear_solver
 from springsim.linsolve.direct import LinearSolverDirect
+from springsim.model.builder import ModelBuilder
+from springsim.run.adaptive import simulate_adaptive
+from springsim.run.driver import simulate
 from springsim.scene.gallery import benchmark_cloth
 
 

@@ -10,9 +10,9 @@ import pytest
 from helpers import damped_chain
 from springsim import simulate
 from springsim.assembly import dense_system
-from springsim.run.energy import total_energy
 from springsim.forces import eval_forces, make_force_terms
 from springsim.integrators import INTEGRATORS, StepStats, make_integrator
+from springsim.run.energy import total_energy
 from springsim.scene import benchmark_cloth
 
 CONVERGING = [name for name, cls in INTEGRATORS.items() if cls.implicit and name != "linearized_implicit"]
