@@ -38,13 +38,18 @@ _PASS_THROUGH = (os.path.normcase(importlib.__file__), os.path.normcase(__file__
                  os.path.normcase(os.path.join(os.path.dirname(__file__), "__init__.py")))
 
 
-def _importer_stacklevel() -> int:
-    """The ``stacklevel`` that makes a warning issued by this module's caller name the code doing the import."""
-    frame, level = sys._getframe(1), 1  # the caller (stacklevel 1), then its callers
-    while frame is not None and (frame.f_code.co_filename.startswith("<frozen importlib")
-                                 or os.path.normcase(frame.f_code.co_filename) in _PASS_THROUGH):
-        frame, level = frame.f_back, level + 1
-    return level
+def _warn_importer(message: str) -> None:
+    """Issue ``message`` as a :class:`DeprecationWarning` of the code doing the import (the first frame outside the
+    import machinery), as ``warnings.warn`` would with the right ``stacklevel``: the default filters then show it
+    when a script imports a former name, and ``-W error::DeprecationWarning`` makes it an error."""
+    frame = sys._getframe(1)
+    while frame.f_back is not None and (frame.f_code.co_filename.startswith("<frozen importlib")
+                                        or os.path.normcase(frame.f_code.co_filename) in _PASS_THROUGH):
+        frame = frame.f_back
+    module_globals = frame.f_globals
+    warnings.warn_explicit(message, DeprecationWarning, frame.f_code.co_filename, frame.f_lineno,
+                           module=module_globals.get("__name__", "<string>"),
+                           registry=module_globals.setdefault("__warningregistry__", {}))
 
 
 class _AliasLoader(importlib.abc.Loader):
@@ -56,8 +61,7 @@ class _AliasLoader(importlib.abc.Loader):
 
     def create_module(self, spec):
         module = importlib.import_module(self.new)
-        warnings.warn(f"{self.old} is deprecated: the module moved to {self.new}; import it from there",
-                      DeprecationWarning, stacklevel=_importer_stacklevel())
+        _warn_importer(f"{self.old} is deprecated: the module moved to {self.new}; import it from there")
         self._spec = module.__spec__
         return module
 
