@@ -1,11 +1,13 @@
-"""The package layout: springsim's modules import each other one way (no import cycles).
+"""The package layout: the top level holds packages and a short list of modules, and springsim's modules import
+each other one way (no import cycles).
 
 Every module of the package is parsed (not imported) and every ``import`` statement in it is an edge of
 the intra-package import graph, including those inside functions: a function-level import does not make a
 cycle go away, it only moves the failure to the first call. Imports under ``if TYPE_CHECKING:`` are
 annotations only and are left out; imports of other packages (numpy, pyamg, petsc4py) are not edges.
 Importing ``springsim.a.b`` from outside ``springsim.a`` also runs ``springsim/a/__init__.py``, so it is an
-edge to that package too.
+edge to that package too. An import of a name that is no module of the package (a former path such as
+``springsim.driver``, which ``springsim._compat`` still serves to users, or a typo) is reported, not dropped.
 """
 
 from __future__ import annotations
@@ -19,6 +21,11 @@ import springsim
 
 ROOT = Path(springsim.__file__).resolve().parent
 PACKAGE = "springsim"
+
+#: The modules allowed at the top level of ``springsim/``; everything else lives in a package named after its
+#: concern (model, forces, assembly, system, linsolve, integrators, run, scene, io, analysis, cli, distributed,
+#: _runtime), so that the file list reads as the architecture (README.md, "Architecture").
+TOP_LEVEL_MODULES = {"__init__", "__main__", "errors", "_compat"}
 
 
 def _modules() -> dict[str, tuple[Path, bool]]:
@@ -55,8 +62,12 @@ def _imports_of(node: ast.AST):
     yield from _imports(node)
 
 
-def import_graph() -> dict[str, dict[str, int]]:
-    """``{module: {imported module: line of the first such import}}`` over springsim's own modules."""
+def import_graph(unresolved: list | None = None) -> dict[str, dict[str, int]]:
+    """``{module: {imported module: line of the first such import}}`` over springsim's own modules.
+
+    Imports of springsim names that are no module of the package are appended to ``unresolved`` as
+    ``(module, imported name, line)``.
+    """
     modules = _modules()
     graph = {}
     for name, (path, is_package) in modules.items():
@@ -79,6 +90,8 @@ def import_graph() -> dict[str, dict[str, int]]:
             for target in found:
                 if target.split(".")[0] != PACKAGE:
                     continue
+                if target not in modules and unresolved is not None:
+                    unresolved.append((name, target, node.lineno))
                 parts = target.split(".")
                 # the target's packages that the importer is not inside run their __init__ too
                 chain = [".".join(parts[:i]) for i in range(2, len(parts))] + [target]
@@ -138,3 +151,27 @@ def test_no_import_cycles():
     if cycle is not None:
         steps = [f"{a} (line {graph[a][b]}) -> {b}" for a, b in zip(cycle, cycle[1:])]
         pytest.fail("import cycle: " + "; ".join(steps))
+
+
+def test_top_level_holds_packages_and_a_few_modules():
+    """``springsim/`` holds packages (directories with an ``__init__.py``) and only the modules of
+    :data:`TOP_LEVEL_MODULES`: a new module goes into the package of its concern, not beside them."""
+    modules = {p.stem for p in ROOT.glob("*.py")}
+    extra = sorted(modules - TOP_LEVEL_MODULES)
+    assert not extra, f"modules at the top level of springsim/ (move them into the package of their concern): {extra}"
+    assert {"__init__", "errors"} <= modules
+    for d in ROOT.iterdir():
+        if d.is_dir() and d.name != "__pycache__":
+            assert (d / "__init__.py").is_file(), f"springsim/{d.name}/ is not a package (no __init__.py)"
+
+
+def test_every_import_names_a_module_of_the_package():
+    """Every springsim import inside the package names one of its modules (or a name in one): no former path of a
+    moved module (``springsim.driver``; ``springsim._compat.MOVED``), which the import graph would not see."""
+    from springsim._compat import MOVED
+
+    unresolved: list = []
+    import_graph(unresolved)
+    assert not unresolved, "imports of no module: " + "; ".join(f"{m} line {line}: {t}" for m, t, line in unresolved)
+    graph = import_graph()
+    assert not [(m, t) for m, targets in graph.items() for t in targets if t in MOVED]
