@@ -25,7 +25,6 @@ MOVED: dict[str, str] = {
     "springsim.driver": "springsim.run.driver",
     "springsim.adaptive": "springsim.run.adaptive",
     "springsim.options": "springsim.run.options",
-    "springsim.progress": "springsim.run.progress",
     "springsim.energy": "springsim.run.energy",
     "springsim.export": "springsim.io.export",
     "springsim.viz": "springsim.io.viz",

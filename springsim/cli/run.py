@@ -2,7 +2,7 @@
 
 The options of a run are those of :func:`springsim.cli.runner.add_run_options` (the fields of
 :class:`springsim.run.options.SolverConfig`) plus ``--out``, ``--frame-every`` and ``--keep-going``. Progress and
-set-up phases are logged (:mod:`springsim.run.progress`) to stderr.
+set-up phases are logged (:mod:`springsim.progress`) to stderr.
 """
 
 from __future__ import annotations

@@ -67,7 +67,7 @@ def load_and_configure(args: argparse.Namespace):
     config : SolverConfig
         The scene's ``solver:`` block with the flags given applied (validated).
     """
-    from ..run.progress import phase
+    from ..progress import phase
     from ..scene import load_scene
     from ..scene.shipped import resolve_scene
 
@@ -140,7 +140,7 @@ def execute(scene, cfg, *, record: bool = True, frame_every: int = 1, progress=T
     frame_every : int
         Record every ``frame_every``-th step (adaptive runs: a frame every ``frame_every * dt``).
     progress : callable, bool or None
-        As for :func:`springsim.simulate` (default: log lines, :class:`springsim.run.progress.ProgressLog`).
+        As for :func:`springsim.simulate` (default: log lines, :class:`springsim.progress.ProgressLog`).
     quiet : bool
         No warning lines (the ranks other than the root of a distributed run).
 
@@ -157,9 +157,9 @@ def execute(scene, cfg, *, record: bool = True, frame_every: int = 1, progress=T
     SimulationError
         The run failed; ``trajectory`` holds the frames so far.
     """
+    from ..progress import as_progress, logger, phase
     from ..run.adaptive import simulate_adaptive
     from ..run.driver import simulate
-    from ..run.progress import as_progress, logger, phase
 
     if cfg.dt is None:  # a config built in Python without a step (the YAML loader requires one)
         raise SceneError("solver.timestep", "missing: give solver.timestep or --dt")

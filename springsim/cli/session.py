@@ -121,7 +121,7 @@ def configure_logging(verbose: int = 0, quiet: bool = False):
     ------
     None
     """
-    from ..run.progress import logger
+    from ..progress import logger
 
     handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(logging.Formatter("springsim: %(message)s"))

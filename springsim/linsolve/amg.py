@@ -52,7 +52,7 @@ import time
 
 import numpy as np
 
-from ..run.progress import logger, phase
+from ..progress import logger, phase
 from ._preconditioner import Preconditioner
 
 _log = logger.getChild("linsolve")

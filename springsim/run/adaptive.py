@@ -44,9 +44,9 @@ from .._runtime.threads import single_blas_thread
 from ..errors import SceneError, SimulationError, SpringsimError
 from ..integrators import INTEGRATORS, Integrator, StepStats, make_integrator
 from ..model import Model, State
+from ..progress import as_progress
 from .driver import RunRecorder, Trajectory
 from .options import ADAPTIVE_H_MIN
-from .progress import as_progress
 
 __all__ = ["simulate_adaptive", "StepSizeController", "hermite_frame"]
 
@@ -349,7 +349,7 @@ def simulate_adaptive(model: Model, integrator: str | Integrator, t_end: float, 
         Limit on attempted steps.
     progress : callable(t, t_end) or True, optional
         Called after each accepted step; True logs a line every few seconds with the time left
-        (:class:`springsim.run.progress.ProgressLog`, logger ``springsim``).
+        (:class:`springsim.progress.ProgressLog`, logger ``springsim``).
     **integrator_options
         Passed to :func:`~springsim.integrators.make_integrator` when ``integrator`` is a name
         (``solver``, ``jacobian``, ``newton_tol``, ...).

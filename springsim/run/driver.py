@@ -41,9 +41,9 @@ from ..integrators import Integrator, StepStats
 from ..io._atomic import _new_file_mode, _target, check_output_path, save_npz_atomic  # noqa: F401 (re-exported)
 from ..io._npz import read_trajectory_npz
 from ..model import Model, State
+from ..progress import as_progress
 from .energy import EnergyBound
 from .options import MAX_STEPS, describe_int
-from .progress import as_progress
 
 __all__ = ["Trajectory", "TRAJECTORY_FORMAT", "TRAJECTORY_FORMAT_VERSION", "run_metadata", "simulate", "SimulationInterrupted", "save_npz_atomic", "check_output_path",
            "RunRecorder", "steps_for_duration", "MAX_STEPS"]
@@ -433,7 +433,7 @@ def simulate(model: Model, integrator: Integrator, dt: float, steps: int, *, sta
         If False, keep only the initial and final frames (large scenes).
     progress : callable(step, steps) or True, optional
         Called after every step; True logs a line every few seconds with the time left
-        (:class:`springsim.run.progress.ProgressLog`, logger ``springsim``).
+        (:class:`springsim.progress.ProgressLog`, logger ``springsim``).
     check_energy : bool
         Stop when a finite state holds more energy than the forces can supply (module docstring).
 

@@ -12,7 +12,7 @@ import numpy as np
 from ..assembly import SystemAssembler
 from ..forces import eval_forces, eval_forces_discrete, make_force_terms
 from ..linsolve import make_linear_solver
-from ..run.progress import logger, phase
+from ..progress import logger, phase
 from ._base import System
 
 __all__ = ["SerialSystem"]

@@ -1,4 +1,4 @@
-"""Progress and set-up logging (springsim.run.progress) and the CLI's -v/--quiet."""
+"""Progress and set-up logging (springsim.progress) and the CLI's -v/--quiet."""
 
 import logging
 
@@ -6,9 +6,9 @@ import pytest
 from helpers import PENDULUM_YAML
 
 from springsim import cli, make_integrator, simulate, simulate_adaptive
+from springsim import progress as progress_module
 from springsim.model.builder import ModelBuilder
-from springsim.run import progress as progress_module
-from springsim.run.progress import ProgressLog, as_progress, format_seconds, logging_configured, phase
+from springsim.progress import ProgressLog, as_progress, format_seconds, logging_configured, phase
 
 SCENE = PENDULUM_YAML
 
