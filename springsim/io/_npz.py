@@ -17,6 +17,7 @@ import zlib
 
 import numpy as np
 
+from .._runtime import memory
 from ..errors import SpringsimError
 
 __all__ = ["MAX_META_BYTES", "NpyHeader", "npz_headers", "read_trajectory_npz"]
@@ -118,12 +119,10 @@ def _check_headers(path: str, h: dict[str, NpyHeader]) -> None:
 
 
 def _check_memory(path: str, h: dict[str, NpyHeader]) -> None:
-    from ..scene import yaml_io
-
     # t, q and qd as float64, plus the array being read before its conversion
     need = sum(math.prod(h[n].shape) * 8 for n in ("t", "q")) + math.prod(h["q"].shape) * 8
     need += max((a.nbytes for a in h.values()), default=0)
-    have = yaml_io._available_memory()
+    have = memory.available_memory()
     if have is not None and need > have:
         q = h["q"]
         raise SpringsimError(f"{path}: array q {q.shape} ({q.shape[1]} particles, {q.shape[0]} frames) needs about "

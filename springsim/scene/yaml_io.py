@@ -42,6 +42,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from .._runtime import memory
 from ..errors import SceneError
 from ..forces._data import data_terms, term_group
 from ..model import AXES, Model
@@ -564,7 +565,7 @@ def parse_scene(doc, *, source: str = "<string>") -> Scene:
     if generated > MAX_GENERATED_PARTICLES:
         raise SceneError(where, f"generator blocks would create {generated} particles, more than the limit "
                                 f"springsim.scene.yaml_io.MAX_GENERATED_PARTICLES = {MAX_GENERATED_PARTICLES}")
-    need, have = generated * GENERATED_BYTES_PER_PARTICLE, _available_memory()
+    need, have = generated * GENERATED_BYTES_PER_PARTICLE, memory.available_memory()
     if have is not None and need > have:
         raise SceneError(where, f"generator blocks would create {generated} particles, which need about "
                                 f"{need / 2**30:.1f} GiB to build; {have / 2**30:.1f} GiB of memory are available")
@@ -612,21 +613,6 @@ def parse_scene(doc, *, source: str = "<string>") -> Scene:
         raise e from None
     return Scene(model=model, config=cfg, plot=plot, source=source, name=name,
                  metadata={"description": doc.get("description", "")})
-
-
-def _available_memory() -> int | None:
-    """Memory available to a new allocation [bytes] (Linux ``MemAvailable``, else physical memory; None if unknown)."""
-    try:
-        with open("/proc/meminfo", encoding="ascii") as fh:
-            for line in fh:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        pass
-    try:
-        return int(os.sysconf("SC_PHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
-    except (AttributeError, ValueError, OSError):
-        return None
 
 
 def _read_scene_file(source: str) -> tuple[str, bytes]:

@@ -24,6 +24,7 @@ from hypothesis import strategies as st
 
 import springsim
 from springsim import cli
+from springsim._runtime import memory
 from springsim.errors import SceneError, SceneTypeError, SimulationError, SimulationInterrupted
 from springsim.integrators import make_integrator
 from springsim.linsolve import LINEAR_SOLVERS, make_linear_solver
@@ -118,7 +119,7 @@ def test_huge_integers_are_errors(text):
 
 def test_huge_generated_cloth_is_refused_by_memory(monkeypatch):
     """A generator block that would need more memory than is available is refused before allocating anything."""
-    monkeypatch.setattr(yaml_io, "_available_memory", lambda: 2**30)
+    monkeypatch.setattr(memory, "available_memory", lambda: 2**30)
     msg = _scene_error(HEAD + "cloth: {nx: 2000, ny: 2000}\n")
     assert "4000000 particles" in msg and "GiB" in msg
     msg = _scene_error(HEAD + "benchmark_cloth: {n: 100000}\n")  # above MAX_GENERATED_PARTICLES

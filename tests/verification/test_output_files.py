@@ -137,9 +137,9 @@ def test_huge_announced_trajectory_is_refused_before_reading(tmp_path, capsys, m
         line = _one_line_error(capsys, *argv)
         assert str(f) in line and "200000 particles" in line and "array q" in line
     assert reads == []
-    from springsim.scene import yaml_io
+    from springsim._runtime import memory
 
-    monkeypatch.setattr(yaml_io, "_available_memory", lambda: 2**20)
+    monkeypatch.setattr(memory, "available_memory", lambda: 2**20)
     with pytest.raises(SpringsimError, match=r"array q \(2, 200000, 3\).*memory"):
         Trajectory.load(f)
     assert reads == []
