@@ -1,5 +1,5 @@
 """The package layout: the top level holds packages and a short list of modules, and springsim's modules import
-each other one way (no import cycles).
+each other one way (no import cycles), as do its packages.
 
 Every module of the package is parsed (not imported) and every ``import`` statement in it is an edge of
 the intra-package import graph, including those inside functions: a function-level import does not make a
@@ -176,3 +176,30 @@ def test_every_import_names_a_module_of_the_package():
     assert not unresolved, "imports of no module: " + "; ".join(f"{m} line {line}: {t}" for m, t, line in unresolved)
     graph = import_graph()
     assert not [(m, t) for m, targets in graph.items() for t in targets if t in MOVED]
+
+
+def package_graph(graph: dict[str, dict[str, int]]) -> dict[str, dict[str, str]]:
+    """The import graph between the top-level packages and modules of springsim (``springsim.run.driver`` belongs to
+    ``run``): ``{package: {imported package: one module-level edge behind it, "a (line n) -> b"}}``."""
+    def top(module: str) -> str:
+        return module.split(".")[1] if "." in module else module
+
+    out: dict[str, dict[str, str]] = {}
+    for module, targets in graph.items():
+        for target, line in targets.items():
+            a, b = top(module), top(target)
+            if a != b:
+                out.setdefault(a, {}).setdefault(b, f"{module} (line {line}) -> {target}")
+        out.setdefault(top(module), {})
+    return out
+
+
+def test_packages_import_one_way():
+    """The packages are layers: none imports, through any of its modules, a package that imports it back. So
+    progress and the exceptions, which every layer uses, are top-level modules, and the lower layers never reach up
+    into run/, scene/ or io/ (README.md, "Architecture")."""
+    packages = package_graph(import_graph())
+    assert {"model", "run", "io", "analysis", "_runtime", "forces", "linsolve"} <= set(packages)
+    cycle = find_cycle({a: dict.fromkeys(b) for a, b in packages.items()})
+    if cycle is not None:
+        pytest.fail("package cycle: " + "; ".join(packages[a][b] for a, b in zip(cycle, cycle[1:])))
