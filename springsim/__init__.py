@@ -1,8 +1,10 @@
 """springsim: large mass-spring systems with implicit time integration and fast sparse assembly.
 
 Everyday names live here; everything else has one import path in its subpackage
-(:mod:`springsim.forces`, :mod:`springsim.assembly`, :mod:`springsim.linsolve`,
-:mod:`springsim.integrators`, :mod:`springsim.scene`).
+(:mod:`springsim.model`, :mod:`springsim.forces`, :mod:`springsim.assembly`, :mod:`springsim.linsolve`,
+:mod:`springsim.integrators`, :mod:`springsim.run`, :mod:`springsim.scene`, :mod:`springsim.io`,
+:mod:`springsim.analysis`). The former paths of modules that moved into these (``springsim.driver``, ...)
+still import, with a DeprecationWarning (``springsim/_compat.py``).
 
 The names are loaded on first use (PEP 562), so ``import springsim`` and the command
 line start without importing numpy and scipy; a Ctrl-C during start-up is then handled

@@ -1,5 +1,6 @@
-"""The model and its construction: the immutable :class:`Model` and the :class:`State` (:mod:`.model`), the
-:class:`~springsim.model.builder.ModelBuilder` (:mod:`.builder`) and cloth-grid topology (:mod:`.topology`).
+"""The model and its construction: the immutable :class:`~springsim.model.model.Model` and the
+:class:`~springsim.model.model.State` (:mod:`.model`), the :class:`~springsim.model.builder.ModelBuilder`
+(:mod:`.builder`) and cloth-grid topology (:mod:`.topology`).
 
 The names of :mod:`springsim.model.model` are re-exported here (``from springsim.model import Model``).
 """
