@@ -1,5 +1,5 @@
-"""The petsc backend against the serial path: partition, forces, the gathered matrix, trajectories on 1 and 2 ranks,
-and failure paths that end every rank with one message (each bounded by a timeout).
+"""The petsc backend against the serial path: partition, forces, the gathered matrix, trajectories of every
+integrator on 1, 2 and 3 ranks, and failure paths that end every rank with one message (each bounded by a timeout).
 
 The partition tests are plain numpy and always run. The others need petsc4py, mpi4py and ``mpiexec``; they are
 skipped where those are absent unless ``SPRINGSIM_REQUIRE_PETSC=1`` (set by ``.ci/run``'s distributed stage), where
@@ -196,8 +196,7 @@ CASES = [("cloth", "symplectic_euler", 1e-4, 30, 1e-12), ("irregular", "symplect
 IMPLICIT = ("linearized_implicit", "implicit_euler", "bdf2", "tr_bdf2", "energy_momentum")
 
 
-TRAJECTORY_CASES = ([(*c, ranks, "contiguous") for c in CASES for ranks in (1, 2)]
-                    + [(*c, 3, "contiguous") for c in CASES if c[1] in ("implicit_euler", "tr_bdf2")]
+TRAJECTORY_CASES = ([(*c, ranks, "contiguous") for c in CASES for ranks in (1, 2, 3)]
                     + [(*c, 2, "ptscotch") for c in CASES if c[0] == "irregular" and c[1] in ("symplectic_euler",
                                                                                            "implicit_euler")]
                     + [("shuffled_cloth", "linearized_implicit", 1 / 60, 10, 1e-7, 3, "ptscotch")])
