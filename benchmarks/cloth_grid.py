@@ -67,6 +67,7 @@ def run(n, steps, integrator, solver, rtol, jacobian, warmup, solver_options=Non
         newton_failures=sum(not r["newton_ok"] for r in rows),
         max_relres=float(max(r["relres"] for r in rows)),
         warmup_step_s=[r["step_s"] for r in rows[:warmup]], build_s=build_s, symbolic_s=symbolic_s,
+        per_step=[{k: r[k] for k in ("step_s", "newton", "newton_ok", "iterations")} for r in rows],
         fallbacks=sum(len(r["fallbacks"]) for r in rows),
         peak_rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
         solver_info={k: v for k, v in getattr(getattr(integ.solver, "preconditioner", None), "describe", dict)().items()},
