@@ -16,7 +16,7 @@ The modules are parsed, not imported. The rule:
   counted) has a ``Returns`` section; a generator (``yield`` in its body, context managers included) a ``Yields``
   section.
 * **Properties** need only the summary line (Sphinx shows them as attributes).
-* **Overrides inherit.** A method that overrides a method of a springsim base class with the same signature
+* **Overrides inherit.** A method (or property) that overrides one of a springsim base class with the same signature
   (parameter names, kinds and defaults; annotations aside), where the base method passes this check itself, needs
   nothing: Sphinx's autodoc shows the base docstring when the override has none, and an override's own docstring
   (what this implementation does differently) needs only its summary line. Base classes outside springsim
@@ -310,8 +310,8 @@ def problems(target: Target) -> list[str]:
     node = target.node
     doc = ast.get_docstring(node)
     if target.cls is not None and isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) \
-            and not _is_property(node) and _inherited(target) is not None:
-        return []  # an override of a documented base method: autodoc shows the base docstring
+            and _inherited(target) is not None:
+        return []  # an override of a documented base method or property: autodoc shows the base docstring
     if not doc:
         return ["no docstring"]
     if not doc.splitlines()[0].strip():
