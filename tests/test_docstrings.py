@@ -11,7 +11,8 @@ The modules are parsed, not imported. The rule:
 * **Every checked definition** has a docstring whose first line is its summary.
 * **Functions and methods** with parameters (other than ``self``/``cls``) have a ``Parameters`` (or ``Other
   Parameters``) section naming exactly the signature's parameters: none missing, none unknown (a stale name).
-  ``*args``/``**kwargs`` may be listed with or without their stars; ``a, b : ndarray`` names two parameters.
+  ``*args``/``**kwargs`` may be listed with or without their stars; ``a, b : ndarray`` names two parameters;
+  a parameter whose name starts with ``_`` is private and need not be listed (``SystemMatrix._cache``).
   A function whose body has an explicit ``return <value>`` (not ``return``/``return None``, nested functions not
   counted) has a ``Returns`` section; a generator (``yield`` in its body, context managers included) a ``Yields``
   section.
@@ -351,7 +352,7 @@ def problems(target: Target) -> list[str]:
 def _compare(wanted: list[str], listed: list[str], section: str) -> list[str]:
     listed = {n.lstrip("*") for n in listed}
     out = []
-    missing = [n for n in wanted if n not in listed]
+    missing = [n for n in wanted if n not in listed and not n.startswith("_")]
     unknown = sorted(listed - set(wanted))
     if missing:
         out.append(f"missing {section} ({', '.join(missing)})")
