@@ -211,13 +211,12 @@ def _signature(node) -> tuple:
 
 def _own_nodes(node):
     """The nodes of a function's body, not descending into nested functions, classes and lambdas."""
-    todo = list(node.body)
+    nested = (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef, ast.Lambda)
+    todo = [n for n in node.body if not isinstance(n, nested)]
     while todo:
         n = todo.pop()
         yield n
-        for child in ast.iter_child_nodes(n):
-            if not isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef, ast.Lambda)):
-                todo.append(child)
+        todo.extend(child for child in ast.iter_child_nodes(n) if not isinstance(child, nested))
 
 
 def _returns_value(node) -> bool:
