@@ -183,8 +183,10 @@ class Model:
 
     Parameters
     ----------
-    particle_q, particle_qd : array_like, shape (N, 3)
-        Initial positions [m] and velocities [m/s].
+    particle_q : array_like, shape (N, 3)
+        Initial positions [m].
+    particle_qd : array_like, shape (N, 3)
+        Initial velocities [m/s].
     particle_mass : array_like, shape (N,)
         Masses [kg].
     particle_radius : array_like, shape (N,), optional
@@ -194,8 +196,16 @@ class Model:
     terms : mapping, optional
         Term name -> (array name -> array): the term data given per term; arrays not given take their declared
         defaults (no pairs, default values).
-    gravity, up_axis, pair_epsilon, cloth_grids, metadata
-        As the attributes of those names; ``metadata`` default an empty dict.
+    gravity : float
+        Acceleration along the up axis [m/s^2]; default -9.81.
+    up_axis : int
+        0, 1 or 2; default 2 (z).
+    pair_epsilon : float
+        Distance [m] below which a spring's direction is undefined; default 1e-9.
+    cloth_grids : sequence of ClothGrid
+        The model's cloth grids; default none.
+    metadata : dict, optional
+        Free-form information; default an empty dict.
     **arrays
         Term data by attribute name (``spring_stiffness=...``, ``particle_drag=...``), merged into ``terms``.
 
