@@ -20,7 +20,8 @@ The modules are parsed, not imported. The rule:
 * **Overrides inherit.** A method (or property) that overrides one of a springsim base class with the same signature
   (parameter names, kinds and defaults; annotations aside), where the base method passes this check itself, needs
   nothing: Sphinx's autodoc shows the base docstring when the override has none, and an override's own docstring
-  (what this implementation does differently) needs only its summary line. Base classes outside springsim
+  (what this implementation does differently) needs only its summary line (a ``Parameters`` section it has must
+  still name the parameters). Base classes outside springsim
   (``logging.Handler``, ``Exception``) give nothing to inherit.
 * **Classes** have their constructor's parameters in a ``Parameters`` section of the class docstring (numpydoc;
   ``__init__``'s docstring also counts, as ``autoclass_content = "both"`` renders the two together). The
@@ -311,7 +312,13 @@ def problems(target: Target) -> list[str]:
     doc = ast.get_docstring(node)
     if target.cls is not None and isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) \
             and _inherited(target) is not None:
-        return []  # an override of a documented base method or property: autodoc shows the base docstring
+        # an override of a documented base method or property: autodoc shows the base docstring; a Parameters
+        # section of its own must still name the parameters
+        found = sections(doc or "")
+        if not any(s in found for s in PARAMETER_SECTIONS):
+            return []
+        return _compare(_parameters(node, method=True), [n for s in PARAMETER_SECTIONS for n in found.get(s, [])],
+                        "Parameters")
     if not doc:
         return ["no docstring"]
     if not doc.splitlines()[0].strip():
@@ -434,6 +441,17 @@ def test_rule_sees_the_sections():
                      '    if a:\n        return a\n')
     assert problems(Target(module, tree.body[0], "g")) == [
         "missing Parameters (a)", "Parameters lists names not in the signature (b)", "missing Returns"]
+    base_doc = "Summary.\n\n        Parameters\n        ----------\n        x : float\n            X.\n        "
+    tree = ast.parse(f'class Base:\n    """A base."""\n    def f(self, x):\n        """{base_doc}"""\n\n'
+                     'class Sub(Base):\n    """A subclass.\n\n    Attributes\n    ----------\n    y : int\n'
+                     '        Y.\n    """\n    def __init__(self, y):\n        self.y = y\n\n'
+                     '    def f(self, x):\n        return x\n\n    def g(self, x):\n        """Not inherited."""\n')
+    module.tree, module.defs = tree, {n.name: n for n in tree.body}
+    base, sub = tree.body
+    method = {n.name: n for n in sub.body if isinstance(n, ast.FunctionDef)}
+    assert problems(Target(module, sub, "Sub")) == ["missing Parameters (y)"]  # a constructor is no dataclass
+    assert problems(Target(module, method["f"], "Sub.f", sub)) == []  # inherits Base.f's docstring
+    assert problems(Target(module, method["g"], "Sub.g", sub)) == ["missing Parameters (x)"]
 
 
 def coverage() -> tuple[int, int]:
