@@ -63,7 +63,8 @@ class System(ABC):
         Returns
         -------
         dict
-            ``{"backend": "serial"}`` here; a backend adds its own keys (ranks, solver options).
+            ``{"backend": "serial"}`` here; a backend overrides it with its own (the PETSc one: ``"petsc"``, ``ranks``,
+            ``partitioner``).
         """
         return {"backend": "serial"}
 
