@@ -55,7 +55,17 @@ PROGRESS_INTERVAL_S = 5.0
 def logging_configured(log: logging.Logger | None = None) -> bool:
     """Whether records of ``log`` (default: the ``springsim`` logger) reach a handler that an application
     configured: one other than a :class:`logging.NullHandler` on it or, through propagation, an ancestor
-    (the root logger included)."""
+    (the root logger included).
+
+    Parameters
+    ----------
+    log : logging.Logger, optional
+        The logger; default the ``springsim`` logger.
+
+    Returns
+    -------
+    bool
+    """
     c = log or logger
     while c is not None:
         if any(not isinstance(h, logging.NullHandler) for h in c.handlers):
@@ -67,7 +77,19 @@ def logging_configured(log: logging.Logger | None = None) -> bool:
 
 
 def format_seconds(s: float) -> str:
-    """``"42 s"``, ``"3 min 05 s"``, ``"2 h 03 min"``."""
+    """``"4.2 s"``, ``"42 s"``, ``"3 min 05 s"``, ``"2 h 03 min"``.
+
+    Parameters
+    ----------
+    s : float
+        A duration [s]; negative values count as 0.
+
+    Returns
+    -------
+    str
+        Tenths of a second below 10 s, whole seconds below a minute, then minutes and seconds, then hours and
+        minutes.
+    """
     s = max(float(s), 0.0)
     if s < 60:
         return f"{s:.1f} s" if s < 10 else f"{s:.0f} s"
@@ -84,6 +106,22 @@ def phase(what: str, log: logging.Logger | None = None, slow: float = SLOW_PHASE
 
     Logs ``"<what> ..."`` at DEBUG when it starts (if ``announce``) and ``"<what>: <time>"`` when it
     ends, at INFO if it took at least ``slow`` seconds, else at DEBUG.
+
+    Parameters
+    ----------
+    what : str
+        The phase, as the log lines name it (``"sparsity pattern of 3000 DOFs"``).
+    log : logging.Logger, optional
+        Where to log; default the ``springsim`` logger.
+    slow : float
+        Duration [s] from which the end is logged at INFO; default :data:`SLOW_PHASE_S`.
+    announce : bool
+        Log the start too (at DEBUG).
+
+    Yields
+    ------
+    None
+        Nothing; a block that raises is not logged as ended.
     """
     log = log or logger
     if announce:
@@ -140,7 +178,20 @@ class ProgressLog:
             print(f"springsim: {line}", file=sys.stderr, flush=True)
 
     def line(self, done, total, now: float | None = None) -> str:
-        """The progress line for ``done`` of ``total``."""
+        """The progress line for ``done`` of ``total``.
+
+        Parameters
+        ----------
+        done, total : int or float
+            Steps done and in all (integers), or simulated time reached and the end time [s] (floats).
+        now : float, optional
+            :func:`time.perf_counter` time of the line; default now.
+
+        Returns
+        -------
+        str
+            ``step 40/200 (20%), 12 s elapsed, about 48 s left`` (the time left once it can be extrapolated).
+        """
         now = time.perf_counter() if now is None else now
         frac = float(done) / float(total) if total else 1.0
         if isinstance(done, float) or isinstance(total, float):
@@ -156,7 +207,24 @@ class ProgressLog:
 
 
 def as_progress(progress):
-    """The callback for a ``progress`` argument: None, a callable, or True for a :class:`ProgressLog`."""
+    """The callback for a ``progress`` argument: None, a callable, or True for a :class:`ProgressLog`.
+
+    Parameters
+    ----------
+    progress : callable, bool or None
+        ``progress(done, total)``, True (a :class:`ProgressLog` every :data:`PROGRESS_INTERVAL_S`), or None or
+        False (no progress).
+
+    Returns
+    -------
+    callable or None
+        The callback, or None.
+
+    Raises
+    ------
+    TypeError
+        ``progress`` is none of these.
+    """
     if progress is True:
         return ProgressLog(interval=PROGRESS_INTERVAL_S)
     if progress is None or progress is False:

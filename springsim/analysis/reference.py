@@ -37,11 +37,18 @@ def reference_trajectory(model, t_eval, *, state=None, method: str = "Radau", rt
         ``solve_ivp`` method (implicit ones use the sparse Jacobian).
     rtol, atol : float
         ``solve_ivp`` tolerances.
+    max_step : float
+        ``solve_ivp``'s largest step [s]; default unbounded.
 
     Returns
     -------
     Trajectory
         Frames at ``t_eval`` (``stats`` is empty; ``wall_s`` is the solve time).
+
+    Raises
+    ------
+    RuntimeError
+        ``solve_ivp`` failed (its message is included).
     """
     import time
 

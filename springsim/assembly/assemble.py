@@ -55,6 +55,7 @@ class SystemMatrix:
 
     @property
     def shape(self):
+        """``(3F, 3F)``: the shape of :attr:`bsr`."""
         return self.bsr.shape
 
     def _scalar(self, fmt: str):
@@ -71,14 +72,34 @@ class SystemMatrix:
         return cached[0]
 
     def tocsr(self) -> sp.csr_matrix:
-        """Scalar CSR view (one gather, pattern precomputed; do not modify)."""
+        """Scalar CSR view (one gather, pattern precomputed; do not modify).
+
+        Returns
+        -------
+        scipy.sparse.csr_matrix, shape (3F, 3F)
+            Cached with the matrix and refreshed when :attr:`version` changed; valid until the next conversion
+            after an assembly.
+        """
         return self._scalar("csr")
 
     def tocsc(self) -> sp.csc_matrix:
-        """Scalar CSC view (one gather, pattern precomputed; do not modify)."""
+        """Scalar CSC view (one gather, pattern precomputed; do not modify).
+
+        Returns
+        -------
+        scipy.sparse.csc_matrix, shape (3F, 3F)
+            Cached with the matrix and refreshed when :attr:`version` changed; valid until the next conversion
+            after an assembly.
+        """
         return self._scalar("csc")
 
     def toarray(self) -> np.ndarray:
+        """Dense copy of the matrix (small systems and tests only).
+
+        Returns
+        -------
+        ndarray, shape (3F, 3F)
+        """
         return self.bsr.toarray()
 
     def __matmul__(self, x):
@@ -169,6 +190,7 @@ class SystemAssembler:
 
     @property
     def dof_count(self) -> int:
+        """``3F``: the unknowns of the assembled system (three per free particle)."""
         return 3 * self.free.size
 
     def precision_loss(self, matrix: SystemMatrix | None = None) -> float:
@@ -180,6 +202,16 @@ class SystemAssembler:
         relative error of the motions the masses alone determine (the centre of mass of a pair
         held together by a stiff spring or a gravitational core); above 1 the masses are lost
         in rounding and the matrix is singular to working precision (docs/robustness.md).
+
+        Parameters
+        ----------
+        matrix : SystemMatrix, optional
+            An assembled matrix of this assembler; default :attr:`matrix`.
+
+        Returns
+        -------
+        float
+            The relative precision (0 when no particle is free).
         """
         m = self.matrix if matrix is None else matrix
         if self.free.size == 0:
@@ -204,6 +236,12 @@ class SystemAssembler:
         damping_geometry : ndarray (N, 3), optional
             Positions at which the dissipative terms take their geometry (:meth:`~springsim.forces.ForceTerm.
             eval_jacobians`): the implicit stages' frozen damping.
+
+        Returns
+        -------
+        SystemMatrix
+            :attr:`matrix`, updated in place (its ``version`` incremented, ``mode``, ``symmetric`` and
+            ``positions`` set).
 
         Raises
         ------
@@ -244,15 +282,42 @@ class SystemAssembler:
     def linearize_at(self, q: np.ndarray) -> None:
         """Make the positions ``q`` (N, 3) the previous linearisation of every term's ``mixed`` Jacobian
         (:meth:`springsim.forces.ForceTerm.linearize_at`), so that the next ``mixed`` assembly continues from
-        there whatever was assembled before."""
+        there whatever was assembled before.
+
+        Parameters
+        ----------
+        q : ndarray, shape (N, 3)
+            Positions [m] of all particles.
+        """
         for term in self.terms:
             term.linearize_at(q, self._work[id(term)])
 
     # -- helpers to move between full (N, 3) arrays and free DOF vectors -------------------
     def gather(self, x: np.ndarray) -> np.ndarray:
-        """Free DOF vector (3F,) from a full (N, 3) array."""
+        """Free DOF vector (3F,) from a full (N, 3) array.
+
+        Parameters
+        ----------
+        x : ndarray, shape (N, 3)
+            A full state array.
+
+        Returns
+        -------
+        ndarray, shape (3F,)
+            Its free rows, flattened (a copy).
+        """
         return x[self.free].reshape(-1)
 
     def scatter_add(self, target: np.ndarray, dx: np.ndarray, scale: float = 1.0) -> None:
-        """``target[free] += scale * dx`` with ``dx`` a free DOF vector (3F,)."""
+        """``target[free] += scale * dx`` with ``dx`` a free DOF vector (3F,).
+
+        Parameters
+        ----------
+        target : ndarray, shape (N, 3)
+            Full state array, added to in place.
+        dx : ndarray, shape (3F,)
+            Free DOF vector.
+        scale : float
+            Factor of ``dx``; default 1.
+        """
         target[self.free] += scale * dx.reshape(-1, 3)

@@ -14,6 +14,13 @@ class BlockPattern:
     Always contains the diagonal. Built from the (row, col) block coordinates that
     force terms can touch, so storage is proportional to the number of pairs.
 
+    Parameters
+    ----------
+    n : int
+        Block rows (free particles).
+    rows, cols : array_like of int, shape (k,)
+        Block coordinates the force terms touch (duplicates allowed); the diagonal is added.
+
     Attributes
     ----------
     n : int
@@ -22,6 +29,8 @@ class BlockPattern:
         Block CSR structure.
     nnzb : int
         Number of stored 3x3 blocks.
+    diagonal_positions : ndarray of int64, shape (n,)
+        Position of each diagonal block in the block data array.
     """
 
     def __init__(self, n: int, rows: np.ndarray, cols: np.ndarray):
@@ -40,16 +49,46 @@ class BlockPattern:
         self._perm: dict[str, tuple] = {}
 
     def locate(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
-        """Position in the block data array of each block ``(rows[k], cols[k])`` (must be in the pattern)."""
+        """Position in the block data array of each block ``(rows[k], cols[k])`` (must be in the pattern).
+
+        Parameters
+        ----------
+        rows, cols : array_like of int, shape (k,)
+            Block coordinates; a block outside the pattern gives a wrong position, it is not checked.
+
+        Returns
+        -------
+        ndarray of int64, shape (k,)
+        """
         return np.searchsorted(self._keys, np.asarray(rows, np.int64) * self.n + np.asarray(cols, np.int64))
 
     def empty_bsr(self) -> sp.bsr_matrix:
+        """A BSR matrix of this pattern with zero blocks (its ``data`` is filled by the assembler).
+
+        Returns
+        -------
+        scipy.sparse.bsr_matrix, shape (3n, 3n)
+            Blocksize (3, 3), ``data`` of shape (nnzb, 3, 3).
+        """
         data = np.zeros((self.nnzb, 3, 3))
         return sp.bsr_matrix((data, self.indices, self.indptr), shape=(3 * self.n, 3 * self.n))
 
     def scalar_permutation(self, fmt: str):
         """``(perm, indices, indptr)`` so that a CSR/CSC matrix with this pattern has
-        ``data = bsr.data.ravel()[perm]`` (computed once, then a single gather per conversion)."""
+        ``data = bsr.data.ravel()[perm]`` (computed once, then a single gather per conversion).
+
+        Parameters
+        ----------
+        fmt : {"csr", "csc"}
+            The scalar format.
+
+        Returns
+        -------
+        perm : ndarray of int64, shape (9 nnzb,)
+            Gather from the flattened block data.
+        indices, indptr : ndarray
+            The scalar matrix's structure (sorted indices).
+        """
         if fmt not in self._perm:
             probe = sp.bsr_matrix((np.arange(1, 9 * self.nnzb + 1, dtype=np.float64).reshape(-1, 3, 3),
                                    self.indices, self.indptr), shape=(3 * self.n, 3 * self.n))

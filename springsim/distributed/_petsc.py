@@ -30,7 +30,14 @@ def import_petsc():
 
     Debian's ``python3-petsc4py`` finds its build through the ``/usr/lib/petsc`` link that only PETSc's
     development package creates; without it (and without ``PETSC_DIR``) the newest real-number build under
-    ``/usr/lib/petscdir`` is used.
+    ``/usr/lib/petscdir`` is used. Sets ``OMP_NUM_THREADS=1`` unless it is set.
+
+    Returns
+    -------
+    PETSc : module
+        ``petsc4py.PETSc``.
+    MPI : module
+        ``mpi4py.MPI``.
 
     Raises
     ------
@@ -61,7 +68,12 @@ def import_petsc():
 
 
 def petsc_available() -> bool:
-    """Whether :func:`import_petsc` succeeds."""
+    """Whether :func:`import_petsc` succeeds.
+
+    Returns
+    -------
+    bool
+    """
     try:
         import_petsc()
     except BackendUnavailable:
@@ -83,10 +95,22 @@ def _env_int(names, default: int) -> int:
 
 def env_rank() -> int:
     """This process's rank as the MPI launcher announced it (0 when not launched by ``mpiexec``); read from
-    the environment, so it is known before (and without) starting MPI."""
+    the environment, so it is known before (and without) starting MPI.
+
+    Returns
+    -------
+    int
+        From ``OMPI_COMM_WORLD_RANK``, ``PMIX_RANK``, ``PMI_RANK`` or ``MV2_COMM_WORLD_RANK``, the first set.
+    """
     return _env_int(_RANK_VARS, 0)
 
 
 def env_size() -> int:
-    """The number of processes ``mpiexec`` started (1 when not launched by it); see :func:`env_rank`."""
+    """The number of processes ``mpiexec`` started (1 when not launched by it); see :func:`env_rank`.
+
+    Returns
+    -------
+    int
+        From ``OMPI_COMM_WORLD_SIZE``, ``PMI_SIZE`` or ``MV2_COMM_WORLD_SIZE``, the first set.
+    """
     return _env_int(_SIZE_VARS, 1)

@@ -67,7 +67,41 @@ def simulate_distributed(model, integrator: str, dt: float, steps: int, *, comm=
     :func:`make_distributed` then :func:`springsim.simulate`; the arguments are theirs. On the root rank the
     trajectory's ``meta`` records ``backend: petsc``, the rank count and the set-up time, and ``meta["timings"]``
     the system's time in exchange, forces, assembly, insertion, preconditioner set-up and solves; the other
-    ranks return None.
+    ranks return None. The distributed system is destroyed at the end, whatever happens.
+
+    Parameters
+    ----------
+    model : Model
+        The same model on every rank.
+    integrator : str
+        A name of :data:`springsim.integrators.INTEGRATORS`.
+    dt : float
+        Time step [s], finite and > 0.
+    steps : int
+        Number of steps, >= 0.
+    comm : petsc4py Comm, optional
+        Default ``PETSc.COMM_WORLD``.
+    frame_every : int
+        Record every k-th step (:func:`springsim.simulate`).
+    record : bool
+        If False, keep only the initial and final frames.
+    progress : callable(step, steps) or True, optional
+        Progress callback (:func:`springsim.simulate`).
+    check_energy : bool
+        Apply the energy bound after every step.
+    linear_rtol, linear_maxiter : float, int
+        Tolerance on the true relative residual and iteration limit of the KSP solves (:func:`make_distributed`).
+    petsc_options : str or dict, optional
+        PETSc options (:func:`make_distributed`).
+    partitioner : str
+        ``contiguous`` (default) or a graph partitioner of PETSc (``ptscotch``, ``parmetis``).
+    **options
+        ``force_kernels`` and the integrator's options (:func:`make_distributed`).
+
+    Returns
+    -------
+    Trajectory or None
+        The frames on the root rank; None on the others.
 
     Raises
     ------

@@ -44,7 +44,25 @@ PARTITIONERS = ("contiguous", "ptscotch", "parmetis")
 
 
 def contiguous_offsets(count: int, size: int) -> np.ndarray:
-    """Offsets (size + 1,) of ``size`` contiguous blocks of ``count`` items, sizes differing by at most one."""
+    """Offsets (size + 1,) of ``size`` contiguous blocks of ``count`` items, sizes differing by at most one.
+
+    Parameters
+    ----------
+    count : int
+        Number of items (free particles).
+    size : int
+        Number of blocks (ranks), >= 1.
+
+    Returns
+    -------
+    ndarray of int64, shape (size + 1,)
+        Block ``r`` is ``offsets[r] .. offsets[r+1]``; the first ``count % size`` blocks have one item more.
+
+    Raises
+    ------
+    ValueError
+        ``size`` < 1.
+    """
     if size < 1:
         raise ValueError(f"size must be >= 1, got {size}")
     base, extra = divmod(int(count), int(size))
@@ -56,7 +74,18 @@ def contiguous_offsets(count: int, size: int) -> np.ndarray:
 def pair_families(model: Model) -> dict[str, list[str]]:
     """The model's pair lists: ``{term: [array, ...]}`` for every term with a pair list in
     :attr:`~springsim.model.model.Model.terms`, its per-pair arrays in declared order after ``"indices"``. With the
-    built-in terms: ``spring`` and ``gravitational``."""
+    built-in terms: ``spring`` and ``gravitational``.
+
+    Parameters
+    ----------
+    model : Model
+        The model.
+
+    Returns
+    -------
+    dict of str to list of str
+        Term name -> ``["indices", <per-pair array>, ...]``.
+    """
     specs = dict(data_terms())
     out = {}
     for term, data in model.terms.items():
@@ -75,11 +104,13 @@ class LocalPart:
     Attributes
     ----------
     rank, size : int
+        This rank and the number of ranks.
     offsets : ndarray (size + 1,)
         Owned free-index range of every rank: rank ``r`` owns ``offsets[r] .. offsets[r+1]``.
     local_particles : ndarray (L,)
         Global particle ids of the local particles: owned, ghosts, fixed.
     n_own, n_ghost : int
+        Numbers of owned and of ghost particles.
     local_to_free : ndarray (L,)
         System block row of each local particle, -1 for fixed ones.
     order : ndarray (F,) or None
@@ -87,6 +118,7 @@ class LocalPart:
     owned_pairs : dict
         Global indices of the owned pairs of each family (``spring``, ``gravitational``).
     pair_model, particle_model : Model
+        The local models (module docstring).
     """
 
     rank: int
@@ -103,10 +135,12 @@ class LocalPart:
 
     @property
     def lo(self) -> int:
+        """First system block row (free index) this rank owns: ``offsets[rank]``."""
         return int(self.offsets[self.rank])
 
     @property
     def hi(self) -> int:
+        """One past the last block row this rank owns: ``offsets[rank + 1]``."""
         return int(self.offsets[self.rank + 1])
 
     @property
@@ -148,7 +182,25 @@ def _sub_model(model: Model, particles: np.ndarray, pairs: dict, *, keep_particl
 
 def system_order(model: Model, order: np.ndarray | None = None) -> np.ndarray:
     """The free particles in the order of the distributed system's block rows: ``model.free_particles``, or
-    ``model.free_particles[order]`` for a permutation ``order`` of them (a graph partition's numbering)."""
+    ``model.free_particles[order]`` for a permutation ``order`` of them (a graph partition's numbering).
+
+    Parameters
+    ----------
+    model : Model
+        The model.
+    order : array_like of int, shape (F,), optional
+        A permutation of ``0 .. F-1``; default the serial order.
+
+    Returns
+    -------
+    ndarray of int64, shape (F,)
+        Global particle ids, block row ``k`` first.
+
+    Raises
+    ------
+    ValueError
+        ``order`` is not a permutation of the free particles.
+    """
     free = model.free_particles
     if order is None:
         return free
@@ -164,6 +216,28 @@ def partition(model: Model, size: int, rank: int, offsets: np.ndarray | None = N
 
     Block row ``k`` of the system is free particle ``system_order(model, order)[k]`` (the serial order unless
     ``order``); rank ``r`` owns rows ``offsets[r] .. offsets[r+1]`` (equal contiguous blocks unless ``offsets``).
+
+    Parameters
+    ----------
+    model : Model
+        The whole model (the same on every rank).
+    size : int
+        Number of ranks.
+    rank : int
+        This rank, ``0 <= rank < size``.
+    offsets : array_like of int, shape (size + 1,), optional
+        Owned block-row ranges, rising from 0 to F; default :func:`contiguous_offsets`.
+    order : array_like of int, shape (F,), optional
+        Numbering of the free particles (:func:`system_order`); default the serial order.
+
+    Returns
+    -------
+    LocalPart
+
+    Raises
+    ------
+    ValueError
+        ``rank`` out of range, invalid ``offsets`` or ``order``.
     """
     if not 0 <= rank < size:
         raise ValueError(f"rank must be in [0, {size}), got {rank}")

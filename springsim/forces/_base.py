@@ -97,17 +97,27 @@ class BlockLayout:
 
 @dataclass(frozen=True, eq=False)
 class Blocks:
-    """3x3 block COO triplets in compact form: a layout and its value blocks (n, 3, 3)."""
+    """3x3 block COO triplets in compact form: a layout and its value blocks (n, 3, 3).
+
+    Attributes
+    ----------
+    layout : BlockLayout
+        Where the value blocks go (shared between evaluations).
+    values : ndarray, shape (layout.value_count, 3, 3)
+        The value blocks (for a Jacobian, [N/m] or [N s/m]).
+    """
 
     layout: BlockLayout
     values: np.ndarray
 
     @property
     def rows(self) -> np.ndarray:
+        """Block row (particle index) of each triplet: the layout's ``rows``."""
         return self.layout.rows
 
     @property
     def cols(self) -> np.ndarray:
+        """Block column (particle index) of each triplet: the layout's ``cols``."""
         return self.layout.cols
 
     @property
@@ -472,6 +482,11 @@ class ForceTerm(ABC):
         Terms whose potential is unbounded below must override this (uniform gravity is
         handled by the caller, see :mod:`springsim.run.energy`); the default 0 holds for
         dissipative terms and for springs.
+
+        Returns
+        -------
+        float
+            The bound [J].
         """
         return 0.0
 

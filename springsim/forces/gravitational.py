@@ -232,6 +232,13 @@ class ForceGravitational(ForceTerm):
         return Blocks(self.layout_q, K), None
 
     def potential_floor(self) -> float:
+        """The sum of the pairs' minima, each at zero distance: ``-3/2 sum c / eps`` [J] (finite, by the softening).
+
+        Returns
+        -------
+        float
+            The bound [J].
+        """
         # the softened potential is smallest at zero distance: c * 0 / (2 eps^3) - 3 c / (2 eps)
         return float(-1.5 * np.sum(self.c / self.eps))
 

@@ -51,4 +51,11 @@ class ForceGravity(ForceTerm):
         return -float(np.dot(self._force.ravel(), np.ravel(q)))
 
     def potential_floor(self) -> float:
+        """``-inf`` (a uniform field's potential is unbounded below), 0 when the field is zero.
+
+        Returns
+        -------
+        float
+            The bound [J].
+        """
         return -np.inf if np.any(self._force) else 0.0

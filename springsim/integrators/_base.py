@@ -107,7 +107,13 @@ class StepStats:
                 and not self.failures)
 
     def fail(self, reason: str) -> None:
-        """Record why the step is not ok (kept once per distinct reason)."""
+        """Record why the step is not ok (kept once per distinct reason).
+
+        Parameters
+        ----------
+        reason : str
+            One line, appended to :attr:`failures` unless already there.
+        """
         if reason not in self.failures:
             self.failures.append(reason)
 
@@ -115,6 +121,11 @@ class StepStats:
         """Forget the outcome of an abandoned attempt before the step is taken again another way.
 
         The work stays counted (iterations, times); the failures move to ``extra["retaken"]``.
+
+        Parameters
+        ----------
+        reason : str
+            Why the attempt was abandoned, appended to ``extra["retaken"]``.
         """
         self.extra.setdefault("retaken", []).append(reason)
         self.newton_converged = True
@@ -150,6 +161,14 @@ class Integrator(ABC):
     force_kernels : {"auto", "numba", "numpy"}
         Compiled force passes where numba is installed (``"auto"``; see :func:`springsim.forces.make_force_terms`)
         or the pure numpy path; used only when neither ``system`` nor ``terms`` is given.
+    **system_options
+        Passed to the :class:`~springsim.system.SerialSystem` made when ``system`` is not given (``solver``,
+        ``solver_options``).
+
+    Raises
+    ------
+    TypeError
+        ``terms`` or ``system_options`` together with a ``system``.
     """
 
     name: ClassVar[str]
@@ -202,6 +221,18 @@ class Integrator(ABC):
         """``M^-1 F(q, qd)``, zero for fixed particles, shape (N, 3).
 
         The result lives in a buffer of the integrator's, overwritten by the next call.
+
+        Parameters
+        ----------
+        q : ndarray, shape (n, 3)
+            Positions [m] (a state array of the system).
+        qd : ndarray, shape (n, 3)
+            Velocities [m/s].
+
+        Returns
+        -------
+        ndarray, shape (n, 3)
+            Accelerations [m/s^2] (the integrator's buffer).
         """
         self.system.forces(q, qd, self._f)
         a = np.multiply(self._f, self._inv_mass, out=self._a)
@@ -215,6 +246,17 @@ class Integrator(ABC):
         An integrator keeps state between steps (buffers, warm starts, multistep history, the energy of its run), so
         it is not safe to share between threads: use one integrator per thread. Using one from a second thread while
         another holds it raises :class:`~springsim.errors.SpringsimError` at once, never a wrong answer.
+        The same thread may nest blocks (a run holds it, and each of its steps).
+
+        Yields
+        ------
+        Integrator
+            This integrator.
+
+        Raises
+        ------
+        SpringsimError
+            Another thread holds the integrator.
         """
         if not self._busy.acquire(blocking=False):
             raise SpringsimError(f"the {self.name} integrator is in use by another thread; integrators keep state "
@@ -225,12 +267,35 @@ class Integrator(ABC):
             self._busy.release()
 
     def blowup_hint(self) -> str:
-        """Advice for a run of this integrator that blew up (part of the drivers' error message)."""
+        """Advice for a run of this integrator that blew up (part of the drivers' error message).
+
+        Returns
+        -------
+        str
+            A clause such as ``"try a smaller time step or an implicit integrator"``.
+        """
         return "try a smaller time step or an implicit integrator"
 
     @abstractmethod
     def step(self, state_in, state_out, dt: float) -> StepStats:
-        """Advance ``state_in`` by ``dt`` into ``state_out``."""
+        """Advance ``state_in`` by ``dt`` into ``state_out``.
+
+        Subclasses' steps hold the integrator while they run (:meth:`exclusive`); fixed particles do not move.
+
+        Parameters
+        ----------
+        state_in : State
+            The state at the start of the step (state arrays of the system); not modified.
+        state_out : State
+            Written with the state at the end of the step (its arrays are overwritten in place).
+        dt : float
+            Step size [s].
+
+        Returns
+        -------
+        StepStats
+            What the step cost and whether it can be trusted (:attr:`StepStats.ok`).
+        """
 
     def reset(self) -> None:
         """Forget any history (multistep methods, warm starts) and the last error estimate."""

@@ -57,9 +57,14 @@ class StepHistory:
 
     States are compared on every process of the system (:meth:`~springsim.system.System.all_equal`).
 
-    Attributes hold copies: ``q_in, v_in`` (N, 3) the last step's input, ``q_out, v_out`` its
-    output, ``h`` its size [s], ``a_out`` the acceleration at the output [m/s^2], ``used``
-    whatever history record that step used.
+    :attr:`last` holds the last step's record, ``None`` before it: copies of ``q_in, v_in`` (N, 3), its input,
+    and ``q_out, v_out``, its output; ``h`` its size [s], ``a_out`` the acceleration at the output [m/s^2] (as
+    given), ``used`` whatever history record that step used.
+
+    Parameters
+    ----------
+    system : System
+        The system whose reductions compare states.
     """
 
     def __init__(self, system):
@@ -67,12 +72,38 @@ class StepHistory:
         self.last = None
 
     def record(self, q_in, v_in, q_out, v_out, h, a_out, used):
-        """Remember the step just taken."""
+        """Remember the step just taken.
+
+        Parameters
+        ----------
+        q_in, v_in : ndarray, shape (n, 3)
+            The step's input positions [m] and velocities [m/s] (copied).
+        q_out, v_out : ndarray, shape (n, 3)
+            Its output (copied).
+        h : float
+            Its size [s].
+        a_out : ndarray, shape (n, 3)
+            Acceleration [m/s^2] at the output (kept as given).
+        used : tuple or None
+            The history record the step used (what :meth:`lookup` returned for its input).
+        """
         self.last = dict(q_in=q_in.copy(), v_in=v_in.copy(), q_out=q_out.copy(), v_out=v_out.copy(), h=float(h),
                          a_out=a_out, used=used)
 
     def lookup(self, q, v):
-        """History record for a step from ``(q, v)``: ``(q_prev, v_prev, h_prev, a_n)`` or None."""
+        """History record for a step from ``(q, v)``: ``(q_prev, v_prev, h_prev, a_n)`` or None.
+
+        Parameters
+        ----------
+        q, v : ndarray, shape (n, 3)
+            Positions [m] and velocities [m/s] the next step starts from.
+
+        Returns
+        -------
+        tuple or None
+            ``(q_prev, v_prev, h_prev, a_n)`` when ``(q, v)`` is the last step's output (a continuation);
+            the record the last step used when it is that step's input (a retry); else None.
+        """
         L = self.last
         if L is None:
             return None
@@ -84,13 +115,19 @@ class StepHistory:
         return None
 
     def clear(self):
+        """Forget the last step: the next one starts afresh."""
         self.last = None
 
 
 class IntegratorBDF2(ImplicitIntegrator):
     """Variable-step BDF2 with an implicit Euler start; see the module docstring.
 
-    Parameters are those of :class:`~springsim.integrators.ImplicitIntegrator`.
+    Parameters
+    ----------
+    model : Model
+        The model.
+    **options
+        Keyword options of :class:`~springsim.integrators.ImplicitIntegrator`.
 
     Attributes
     ----------
@@ -121,6 +158,23 @@ class IntegratorBDF2(ImplicitIntegrator):
         self.history.clear()
 
     def advance(self, q, v, h, stats):
+        """One BDF2 step, continuing the history when ``(q, v)`` is the last step's output (or retrying its
+        input), else an implicit Euler start step (module docstring); sets :attr:`error_estimate`.
+
+        Parameters
+        ----------
+        q, v : ndarray, shape (n, 3)
+            Positions [m] and velocities [m/s] at the start of the step (state arrays of the system).
+        h : float
+            Step size [s].
+        stats : StepStats
+            The step's statistics: iterations, solves and failures are added to it.
+
+        Returns
+        -------
+        q1, v1 : ndarray, shape (n, 3)
+            Positions [m] and velocities [m/s] at the end of the step (new arrays).
+        """
         hist = self.history.lookup(q, v)
         if hist is not None:
             q_prev, v_prev, h_prev, a_n = hist

@@ -74,7 +74,12 @@ __all__ = ["IntegratorEnergyMomentum"]
 class IntegratorEnergyMomentum(ImplicitIntegrator):
     """The energy-momentum (discrete-gradient midpoint) method; see the module docstring.
 
-    Parameters are those of :class:`~springsim.integrators.ImplicitIntegrator`.
+    Parameters
+    ----------
+    model : Model
+        The model.
+    **options
+        Keyword options of :class:`~springsim.integrators.ImplicitIntegrator`.
 
     Attributes
     ----------
@@ -99,6 +104,14 @@ class IntegratorEnergyMomentum(ImplicitIntegrator):
         self._q_start: np.ndarray | None = None  # q_0 while the discrete-gradient stage is solved
 
     def stage_overrides(self):
+        """The discrete-gradient force and its matrix, while the energy-momentum stage is solved.
+
+        Returns
+        -------
+        dict
+            ``forces(q, v, f)``: the force over the step from ``q_0`` to ``2 q - q_0`` (the stage position is the
+            midpoint), and ``matrix(q, v, c, mode)``: its stage matrix; empty for any other stage.
+        """
         if self._q_start is None:  # a stage other than the discrete-gradient one
             return {}
         q0, sysm = self._q_start, self.system
@@ -146,6 +159,24 @@ class IntegratorEnergyMomentum(ImplicitIntegrator):
         return q2, v2
 
     def advance(self, q, v, h, stats):
+        """One energy-momentum step; while :attr:`estimating`, two half steps and the error estimate from
+        the full one (step doubling, module docstring).
+
+        Parameters
+        ----------
+        q, v : ndarray, shape (n, 3)
+            Positions [m] and velocities [m/s] at the start of the step (state arrays of the system).
+        h : float
+            Step size [s].
+        stats : StepStats
+            The step's statistics: iterations, solves and failures are added to it.
+
+        Returns
+        -------
+        q1, v1 : ndarray, shape (n, 3)
+            Positions [m] and velocities [m/s] at the end of the step (new arrays); with step doubling, the
+            half steps' result.
+        """
         if self.estimating:
             return self._doubled(q, v, h, stats)
         q1, v1, _ = self._substep(q, v, h, stats)

@@ -8,6 +8,12 @@ __all__ = ["IntegratorExplicitEuler"]
 
 
 class IntegratorExplicitEuler(Integrator):
+    """Explicit Euler (module docstring): one force evaluation per step, no linear solve.
+
+    Parameters are those of :class:`~springsim.integrators.Integrator`; the implicit integrators' options are
+    ignored with a warning (:func:`~springsim.integrators.make_integrator`).
+    """
+
     name = "explicit_euler"
 
     def step(self, state_in, state_out, dt):

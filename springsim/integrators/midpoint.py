@@ -11,6 +11,12 @@ __all__ = ["IntegratorMidpoint"]
 
 
 class IntegratorMidpoint(Integrator):
+    """The explicit midpoint rule (module docstring): two force evaluations per step, no linear solve.
+
+    Parameters are those of :class:`~springsim.integrators.Integrator`; the implicit integrators' options are
+    ignored with a warning (:func:`~springsim.integrators.make_integrator`).
+    """
+
     name = "midpoint"
     order = 2
 

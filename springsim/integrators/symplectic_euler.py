@@ -16,6 +16,18 @@ __all__ = ["IntegratorSymplecticEuler"]
 
 
 class IntegratorSymplecticEuler(Integrator):
+    """Symplectic Euler (module docstring): one force evaluation per step, no linear solve.
+
+    Parameters
+    ----------
+    model : Model
+        The model.
+    **kw
+        Keyword options of :class:`~springsim.integrators.Integrator` (``system``, ``terms``,
+        ``force_kernels``); the implicit integrators' options are ignored with a warning
+        (:func:`~springsim.integrators.make_integrator`).
+    """
+
     name = "symplectic_euler"
 
     def __init__(self, model, **kw):

@@ -75,6 +75,20 @@ def check_output_path(path, *, suffixes: tuple[str, ...] | None = None, inputs=(
     length); with ``suffixes`` (lower case, e.g. ``(".npz",)``), the name must end in one of them; it
     must not be one of the ``inputs`` files (the same file by inode: a link or another spelling).
 
+    Parameters
+    ----------
+    path : str or PathLike
+        The output file.
+    suffixes : tuple of str, optional
+        Allowed name endings, lower case; default any.
+    inputs : iterable of path
+        Files the output must not overwrite (the run's input files).
+
+    Returns
+    -------
+    str
+        The file to write: the absolute real path of ``path`` (symbolic links followed).
+
     Raises
     ------
     SpringsimError

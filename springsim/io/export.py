@@ -44,7 +44,17 @@ __all__ = ["EXPORT_FORMATS", "ExportFormat", "cloth_quads", "export_trajectory",
 
 
 class ExportFormat(NamedTuple):
-    """An export format: file extension, one-line description, whether it is one file per frame."""
+    """An export format: file extension, one-line description, whether it is one file per frame.
+
+    Attributes
+    ----------
+    ext : str
+        File extension, with its dot (``".vtu"``).
+    description : str
+        One line for the help of ``springsim export``.
+    per_frame : bool
+        One file per frame (plus a ``.series`` index for VTK), or one file for the whole trajectory.
+    """
 
     ext: str
     description: str

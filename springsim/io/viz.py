@@ -30,6 +30,16 @@ def require_matplotlib():
 
     springsim draws on standalone figures (no pyplot, no global backend): nothing here depends
     on ``MPLBACKEND`` or a display, and the caller's pyplot state is left alone.
+
+    Returns
+    -------
+    type
+        The class :class:`matplotlib.figure.Figure`.
+
+    Raises
+    ------
+    SpringsimError
+        matplotlib is not installed (the message gives the install command).
     """
     try:
         import matplotlib  # noqa: F401  (first: a missing matplotlib is found even if a submodule is cached)
@@ -64,12 +74,22 @@ def plot_dof(traj, particle_id: int, dof, y_range=None, out_png=None, *, title: 
     y_range : (float, float), optional
         Vertical axis limits [m].
     out_png : path, optional
-        Where to write the PNG; if None the figure is returned open.
+        Where to write the picture (atomically; its extension names the format, ``.png``, ``.svg``, ...); if
+        None the figure is returned open.
     title : str, optional
+        Title of the plot.
+    dpi : int
+        Resolution of the written picture [dots per inch].
 
     Returns
     -------
     Path or matplotlib.figure.Figure
+        ``out_png`` as a path, or the figure.
+
+    Raises
+    ------
+    SpringsimError
+        An invalid ``dof`` or ``particle_id``, an unknown picture extension, no matplotlib.
     """
     Figure = require_matplotlib()
     k = _dof_index(dof)
@@ -209,10 +229,13 @@ def render_frame(model, q: np.ndarray, out_png, *, title: str | None = None, bou
     Parameters
     ----------
     model : Model
+        The model (its springs, cloth grids and radii are drawn).
     q : ndarray (N, 3)
         Particle positions [m].
     out_png : path
+        Where to write the picture (atomically; its extension names the format).
     title : str, optional
+        Title of the picture.
     bounds : (lo, hi), optional
         Axis limits, each (3,) [m]; default a cube around ``q``.
     show_springs, show_particles, surface : bool
@@ -221,10 +244,18 @@ def render_frame(model, q: np.ndarray, out_png, *, title: str | None = None, bou
         View angles [deg].
     size : (float, float)
         Figure size [in]; with ``dpi`` it sets the image size.
+    dpi : int
+        Resolution [dots per inch]; default 100 (600 px for the default size).
 
     Returns
     -------
     Path
+        ``out_png``.
+
+    Raises
+    ------
+    SpringsimError
+        ``q`` of the wrong shape, an unknown picture extension, no matplotlib.
     """
     Figure = require_matplotlib()
     q = np.asarray(q, dtype=np.float64)
@@ -248,19 +279,35 @@ def render_gif(model, traj, out_gif, *, every: int = 1, fps: int = 20, show_spri
     Parameters
     ----------
     model : Model
+        The model (its springs, cloth grids and radii are drawn).
     traj : Trajectory
         Frames ``t`` (F,) [s], ``q`` (F, N, 3) [m].
     out_gif : path
+        Where to write the animation (atomically); the name must end in ``.gif``.
     every : int
-        Frame stride (>= 1).
+        Frame stride (>= 1); the last frame is always included.
     fps : int
         Frames per second of the animation.
+    show_springs, show_particles, surface : bool
+        What to draw (a cloth is drawn as a surface instead of its springs when ``surface``).
+    elev, azim : float
+        View angles [deg].
+    size : (float, float)
+        Figure size [in]; with ``dpi`` it sets the image size.
+    dpi : int
+        Resolution [dots per inch]; default 80 (480 px for the default size).
     title : str, optional
         Title of every frame, followed by the frame's time (default :func:`run_title` of ``traj``).
 
     Returns
     -------
     Path
+        ``out_gif``.
+
+    Raises
+    ------
+    SpringsimError
+        An invalid ``every``, a name not ending in ``.gif``, a trajectory without frames, no matplotlib.
     """
     Figure = require_matplotlib()
     from matplotlib.animation import PillowWriter

@@ -92,6 +92,7 @@ class LinearSolveResult:
 
     @property
     def time_s(self) -> float:
+        """Total wall time [s]: :attr:`setup_s` + :attr:`solve_s`."""
         return self.setup_s + self.solve_s
 
 

@@ -124,7 +124,13 @@ class Preconditioner(ABC):
         self._cache = None
 
     def describe(self) -> dict:
-        """Statistics for ``LinearSolveResult.info``."""
+        """Statistics for ``LinearSolveResult.info``.
+
+        Returns
+        -------
+        dict
+            Name -> value (JSON-able); empty here.
+        """
         return {}
 
     def default_maxiter(self, n: int) -> int:

@@ -481,7 +481,14 @@ class AMGPreconditioner(Preconditioner):
         return min(maxiter, int(self.rebuild_factor * self.baseline + self.rebuild_slack))
 
     def describe(self) -> dict:
-        """Level sizes and complexity of the current hierarchy (for statistics)."""
+        """Level sizes and complexity of the current hierarchy (for statistics).
+
+        Returns
+        -------
+        dict
+            ``levels`` (rows per level), ``operator_complexity``, ``cycle``, and the counts ``builds``,
+            ``stale_rebuilds``, ``nearby_reuses``; empty before the first set-up.
+        """
         if self.ml is None:
             return {}
         return {"levels": [int(lv.A.shape[0]) for lv in self.ml.levels],

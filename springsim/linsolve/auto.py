@@ -60,6 +60,7 @@ class LinearSolverAuto(LinearSolver):
 
     @property
     def rtol(self) -> float:
+        """Relative residual tolerance; setting it sets it on the iterative sub-solvers too."""
         return self._rtol
 
     @rtol.setter

@@ -26,6 +26,9 @@ class LinearSolverDense(LinearSolver):
         Normwise backward error a solution must reach.
     refine : int
         Refinement steps allowed.
+    **kw
+        ``rtol``, ``atol``, ``maxiter`` of :class:`~springsim.linsolve.LinearSolver`; accepted for a uniform
+        interface, unused (the solution is judged by its backward error).
     """
 
     name = "dense"

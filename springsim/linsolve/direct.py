@@ -103,9 +103,14 @@ class LinearSolverDirect(LinearSolver):
     reuse_factors : int
         Refinement steps allowed with the previous call's factors before factoring afresh (module
         docstring); 0 (default) factors every matrix.
-    rtol, atol, maxiter
-        Accepted for a uniform interface; unused (a direct solve is judged by its backward
-        error, see :mod:`springsim.linsolve._base`).
+    **kw
+        ``rtol``, ``atol``, ``maxiter`` of :class:`~springsim.linsolve.LinearSolver`: accepted for a uniform
+        interface; unused (a direct solve is judged by its backward error, see :mod:`springsim.linsolve._base`).
+
+    Raises
+    ------
+    ValueError
+        ``backward_tol`` not > 0, or ``refine`` or ``reuse_factors`` not an integer >= 0.
     """
 
     name = "direct"

@@ -176,14 +176,17 @@ class ModelBuilder:
     # -- counts -----------------------------------------------------------------
     @property
     def particle_count(self) -> int:
+        """Number of particles added so far."""
         return self._n_particles
 
     @property
     def spring_count(self) -> int:
+        """Number of springs added so far."""
         return self.pair_count("spring")
 
     @property
     def gravitational_count(self) -> int:
+        """Number of gravitational pairs added so far."""
         return self.pair_count("gravitational")
 
     def pair_count(self, term: str) -> int:
@@ -228,6 +231,11 @@ class ModelBuilder:
             A fixed particle never moves (its velocity is forced to zero).
         **arrays
             The per-particle arrays of the force terms (:meth:`add_particles`), e.g. ``drag`` [N s/m].
+
+        Returns
+        -------
+        int
+            Index of the particle.
         """
         start = self.add_particles([pos], [vel], mass, radius=np.nan if radius is None else radius,
                                    fixed=fixed, **arrays)
@@ -398,6 +406,11 @@ class ModelBuilder:
             Rest length l0 [m]; ``None`` takes the distance at :meth:`finalize`.
         ke, kd
             Aliases of ``stiffness`` and ``damping`` (not both spellings of one).
+
+        Returns
+        -------
+        int
+            Index of the spring.
         """
         return self.add_springs([[i, j]], stiffness, damping, np.nan if rest_length is None else rest_length,
                                 ke=ke, kd=kd).start
@@ -450,6 +463,11 @@ class ModelBuilder:
         softening
             Softening length [m] (a linear core below it, see :mod:`springsim.forces.gravitational`);
             ``None``: :func:`default_softening` of the pair.
+
+        Returns
+        -------
+        int
+            Index of the gravitational pair.
         """
         return self.add_gravitationals([[i, j]], G, np.nan if softening is None else softening).start
 
@@ -534,6 +552,17 @@ class ModelBuilder:
         ke, kd, ke_y, kd_y, ke_shear, kd_shear, ke_bend, kd_bend
             Aliases of ``stiffness``, ``damping``, ``stiffness_y``, ... (:data:`COEFFICIENT_ALIASES`); giving
             both spellings of one coefficient is an error.
+
+        Returns
+        -------
+        range
+            Indices of the grid's particles, ``start`` to ``start + nx*ny``.
+
+        Raises
+        ------
+        SceneError
+            An invalid argument (``SceneTypeError`` for one of the wrong type), with the path
+            ``cloth.<argument>``; nothing is added then.
         """
         nx = _integer("cloth.nx", nx, 2)
         ny = _integer("cloth.ny", ny, 2)
@@ -710,6 +739,12 @@ class ModelBuilder:
 
     def finalize(self) -> Model:
         """Validate everything and return an immutable :class:`Model`.
+
+        Returns
+        -------
+        Model
+            The model; velocities of fixed particles are set to zero, computed values (rest lengths, softening)
+            filled in.
 
         Raises
         ------

@@ -47,7 +47,15 @@ def _rebuild(cls, kwargs: dict):
 
 
 class ClothGrid(NamedTuple):
-    """A cloth grid inside a model: particle ``(i, j)`` is ``start + j*nx + i``."""
+    """A cloth grid inside a model: particle ``(i, j)`` is ``start + j*nx + i``.
+
+    Attributes
+    ----------
+    start : int
+        Index of the grid's particle (0, 0) in the model.
+    nx, ny : int
+        Particles along the grid's first and second axis.
+    """
 
     start: int
     nx: int
@@ -172,6 +180,46 @@ class Model:
         export: their quads are faces).
     metadata : dict
         Free-form information (``name``, ``source``) carried along; not used by the numerics.
+
+    Parameters
+    ----------
+    particle_q : array_like, shape (N, 3)
+        Initial positions [m].
+    particle_qd : array_like, shape (N, 3)
+        Initial velocities [m/s].
+    particle_mass : array_like, shape (N,)
+        Masses [kg].
+    particle_radius : array_like, shape (N,), optional
+        Drawing radii [m]; default NaN (not given).
+    particle_fixed : array_like of bool, shape (N,), optional
+        Fixed particles; default none.
+    terms : mapping, optional
+        Term name -> (array name -> array): the term data given per term; arrays not given take their declared
+        defaults (no pairs, default values).
+    gravity : float
+        Acceleration along the up axis [m/s^2]; default -9.81.
+    up_axis : int
+        0, 1 or 2; default 2 (z).
+    pair_epsilon : float
+        Distance [m] below which a spring's direction is undefined; default 1e-9.
+    cloth_grids : sequence of ClothGrid
+        The model's cloth grids; default none.
+    metadata : dict, optional
+        Free-form information; default an empty dict.
+    **arrays
+        Term data by attribute name (``spring_stiffness=...``, ``particle_drag=...``), merged into ``terms``.
+
+    Raises
+    ------
+    TypeError
+        A keyword that names no term array (a ``<term>_count`` included).
+    ValueError
+        A term array of the wrong shape, or an unknown array name of a term.
+
+    Notes
+    -----
+    The constructor checks the term arrays' shapes, not their values (:meth:`springsim.ModelBuilder.finalize`
+    does): make models with the builder or the scene loader.
     """
 
     particle_q: np.ndarray
@@ -244,6 +292,7 @@ class Model:
     # -- counts ---------------------------------------------------------------
     @property
     def particle_count(self) -> int:
+        """Number of particles N, fixed ones included."""
         return int(self.particle_mass.shape[0])
 
     @property
@@ -253,6 +302,7 @@ class Model:
 
     @property
     def free_count(self) -> int:
+        """Number of particles that move, F."""
         return int(self.particle_count - np.count_nonzero(self.particle_fixed))
 
     @property
@@ -262,6 +312,7 @@ class Model:
 
     @property
     def gravity_vector(self) -> np.ndarray:
+        """The gravitational acceleration (3,) [m/s^2]: :attr:`gravity` along :attr:`up_axis`."""
         g = np.zeros(3)
         g[self.up_axis] = self.gravity
         return g
@@ -281,7 +332,13 @@ class Model:
                    for spec in cls.data if spec.dissipative)
 
     def state(self) -> "State":
-        """A fresh :class:`State` initialised from the model."""
+        """A fresh :class:`State` initialised from the model.
+
+        Returns
+        -------
+        State
+            Writable copies of :attr:`particle_q` and :attr:`particle_qd`.
+        """
         return State(self.particle_q.copy(), self.particle_qd.copy())
 
     def fingerprint(self) -> str:
@@ -294,6 +351,11 @@ class Model:
         :data:`FINGERPRINT_V1` come first, as they always have; then the scalars; then, by term name, the data
         of every other term that has any (a pair, or a value other than its default). So registering a term
         does not change the fingerprint of a model that does not use it.
+
+        Returns
+        -------
+        str
+            64 hexadecimal digits.
         """
         from ..forces._data import term_attributes
 
@@ -365,7 +427,19 @@ class State:
     particle_qd: np.ndarray
 
     def copy(self) -> "State":
+        """A deep copy (new position and velocity arrays).
+
+        Returns
+        -------
+        State
+        """
         return State(self.particle_q.copy(), self.particle_qd.copy())
 
     def is_finite(self) -> bool:
+        """Whether every position and velocity is finite.
+
+        Returns
+        -------
+        bool
+        """
         return bool(np.isfinite(self.particle_q).all() and np.isfinite(self.particle_qd).all())

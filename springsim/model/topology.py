@@ -142,6 +142,15 @@ def cloth_pin_mask(nx: int, ny: int, pin="edge", *, positions=None, path: str = 
         Particle positions (nx*ny, 3) [m]; needed by boxes only.
     path
         Field path used in error messages.
+
+    Returns
+    -------
+    ndarray of bool, shape (nx*ny,)
+
+    Raises
+    ------
+    SceneError
+        An invalid specification, naming ``path`` (:func:`pin_mask`).
     """
     return pin_mask(pin, nx * ny, positions=positions, grid=(nx, ny), path=path)
 
@@ -162,6 +171,10 @@ def pin_mask(pin, count: int, *, positions=None, grid: tuple[int, int] | None = 
         ``(nx, ny)`` when the particles are a cloth grid: enables names and ``{i: , j: }``.
     path
         Field path used in error messages (``cloth.pin``, ``pin``).
+
+    Returns
+    -------
+    ndarray of bool, shape (count,)
 
     Raises
     ------

@@ -96,6 +96,7 @@ class Trajectory:
 
     @property
     def frame_count(self) -> int:
+        """Number of frames F, the initial state included."""
         return int(self.t.shape[0])
 
     def __repr__(self) -> str:
@@ -115,6 +116,18 @@ class Trajectory:
         ``meta`` a 0-d unicode array holding :attr:`meta` as a JSON object, with
         ``"format": "springsim-trajectory"`` and ``"format_version": 1`` (these two keys are always the
         format's own: a ``meta`` entry of the same name does not replace them).
+
+        Parameters
+        ----------
+        path : str or PathLike
+            Target file, used exactly as given (no ``.npz`` is appended).
+
+        Raises
+        ------
+        SpringsimError
+            The target is not a regular file or its directory is missing.
+        OSError
+            Writing failed (full disk, permissions); the target is unchanged.
         """
         meta = {**self.meta, "format": TRAJECTORY_FORMAT, "format_version": TRAJECTORY_FORMAT_VERSION}
         save_npz_atomic(path, t=self.t, q=self.q, qd=self.qd, meta=np.array(json.dumps(meta, sort_keys=True)))
@@ -122,6 +135,17 @@ class Trajectory:
     @classmethod
     def load(cls, path) -> "Trajectory":
         """Read a trajectory written by :meth:`save` (arrays ``t``, ``q`` and optionally ``qd``).
+
+        Parameters
+        ----------
+        path : str or PathLike
+            The ``.npz`` file.
+
+        Returns
+        -------
+        Trajectory
+            The frames and :attr:`meta` as saved (``format`` and ``format_version`` included); no step
+            statistics.
 
         Raises
         ------
@@ -136,7 +160,16 @@ class Trajectory:
         return cls(t, q, qd, meta=meta)
 
     def summary(self) -> dict:
-        """Aggregate statistics over all steps (per-step means where it says so)."""
+        """Aggregate statistics over all steps (per-step means where it says so).
+
+        Returns
+        -------
+        dict
+            ``steps``; ``wall_s``, ``cpu_s`` [s] of the run; per-step means ``step_s``, ``assembly_s``,
+            ``solve_s``, ``other_s`` [s], ``newton_iterations``, ``linear_iterations``; counts
+            ``newton_failures``, ``linear_failures``, ``ill_conditioned``, ``failed_steps``, ``fallbacks``;
+            maxima ``max_linear_residual``, ``max_precision_loss``.
+        """
         s = self.stats
         n = max(len(s), 1)
         assembly = sum(x.assembly_s for x in s)
@@ -183,6 +216,18 @@ def steps_for_duration(duration: float, dt: float) -> int:
     """Steps of size ``dt`` that cover ``duration`` [s]: ``ceil(duration / dt)`` (a relative 1e-9
     slack absorbs rounding, so 1.0 / 0.01 is 100 steps), at least 1 for a positive duration.
 
+    Parameters
+    ----------
+    duration : float
+        Simulated time [s], >= 0.
+    dt : float
+        Step size [s], > 0.
+
+    Returns
+    -------
+    int
+        The number of steps (0 for a zero duration).
+
     Raises
     ------
     ValueError
@@ -227,7 +272,22 @@ def _check_integrator(model, integrator) -> None:
 
 # -- the shared run machinery --------------------------------------------------------------------
 def run_metadata(model, integrator) -> dict:
-    """The part of :attr:`Trajectory.meta` that the model and the integrator determine."""
+    """The part of :attr:`Trajectory.meta` that the model and the integrator determine.
+
+    Parameters
+    ----------
+    model : Model
+        The model run.
+    integrator : Integrator
+        The integrator that runs it.
+
+    Returns
+    -------
+    dict
+        ``springsim_version``, ``model_fingerprint``, ``scene``, ``source``, ``integrator``, ``linear_solver``,
+        ``jacobian`` (None where they do not apply), and the system's :meth:`~springsim.system.System.metadata`
+        (``backend``, ...).
+    """
     from .. import __version__
 
     solver = getattr(integrator, "solver", None)
@@ -279,7 +339,15 @@ class RunRecorder:
         self.meta = run_metadata(model, integrator)
 
     def add_frame(self, t: float, q: np.ndarray, qd: np.ndarray) -> None:
-        """Record a frame of state arrays (gathered on the root process, copied). Collective."""
+        """Record a frame of state arrays (gathered on the root process, copied). Collective.
+
+        Parameters
+        ----------
+        t : float
+            Simulated time of the frame [s].
+        q, qd : ndarray, shape (n, 3)
+            Positions [m] and velocities [m/s] (state arrays of the system).
+        """
         q, qd = self.system.gather_state(q, qd)
         self.t.append(float(t))
         if self.is_root:
@@ -288,7 +356,18 @@ class RunRecorder:
 
     def trajectory(self, keep_last: bool = False) -> Trajectory | None:
         """The frames so far (None on processes other than the root); ``keep_last`` adds the last completed state
-        if it was not recorded (collective then)."""
+        if it was not recorded (collective then).
+
+        Parameters
+        ----------
+        keep_last : bool
+            Record the last completed state first if it is not the last frame.
+
+        Returns
+        -------
+        Trajectory or None
+            The frames, statistics and timings so far, on the root process.
+        """
         if keep_last and not self.recorded:
             self.add_frame(self.time, self.state.particle_q, self.state.particle_qd)
             self.recorded = True
@@ -303,17 +382,42 @@ class RunRecorder:
                           None if self.adaptive_stats is None else dict(self.adaptive_stats), meta)
 
     def kept(self) -> str:
+        """What a failed run keeps, for its error message: ``"kept 12 finite frame(s) up to t=0.5 s"``.
+
+        Returns
+        -------
+        str
+        """
         n = len(self.t) + (not self.recorded)
         return f"kept {n} finite frame(s) up to t={self.time:g} s"
 
     def step(self, dt: float) -> StepStats:
-        """Take one step of ``dt`` from :attr:`state` into :attr:`scratch` (not yet accepted)."""
+        """Take one step of ``dt`` from :attr:`state` into :attr:`scratch` (not yet accepted).
+
+        numpy's overflow and invalid-value warnings are silenced: :meth:`check` judges the result.
+
+        Parameters
+        ----------
+        dt : float
+            Step size [s].
+
+        Returns
+        -------
+        StepStats
+            The integrator's statistics of the step.
+        """
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # judged by check()
             return self.integrator.step(self.state, self.scratch, dt)
 
     def problem(self) -> str | None:
         """Why the state in :attr:`scratch` is a blow-up (NaN/inf, energy bound), or None; the same on every
-        process."""
+        process.
+
+        Returns
+        -------
+        str or None
+            One clause for the error message, or None when the state is fine.
+        """
         s = self.scratch
         if not self.system.all_finite(s.particle_q, s.particle_qd):
             bad = ~(np.isfinite(s.particle_q).all(axis=1) & np.isfinite(s.particle_qd).all(axis=1))
@@ -328,14 +432,36 @@ class RunRecorder:
         return None
 
     def check(self, step: int, t_new: float) -> None:
-        """Raise :class:`SimulationError` if the state in :attr:`scratch` blew up (:meth:`problem`)."""
+        """Raise :class:`SimulationError` if the state in :attr:`scratch` blew up (:meth:`problem`).
+
+        Parameters
+        ----------
+        step : int
+            Number of the step that made it (from 1), for the message.
+        t_new : float
+            Simulated time [s] it reached.
+
+        Raises
+        ------
+        SimulationError
+            The state blew up; the error carries the frames so far (the last completed state included) and
+            the step.
+        """
         why = self.problem()
         if why is not None:
             raise SimulationError(f"simulation blew up at step {step} (t={t_new:g} s): {why}; {self.kept()}; "
                                   f"{self.integrator.blowup_hint()}", self.trajectory(keep_last=True), step=step)
 
     def accept(self, stats: StepStats, t_new: float) -> None:
-        """Make :attr:`scratch` the current state (swap buffers)."""
+        """Make :attr:`scratch` the current state (swap buffers).
+
+        Parameters
+        ----------
+        stats : StepStats
+            The step's statistics, appended to the run's.
+        t_new : float
+            Simulated time [s] of the new state.
+        """
         self.stats.append(stats)
         self.state, self.scratch = self.scratch, self.state
         self.time = t_new
@@ -343,20 +469,54 @@ class RunRecorder:
         self.recorded = False
 
     def record_current(self) -> None:
+        """Record the current state as a frame (collective)."""
         self.add_frame(self.time, self.state.particle_q, self.state.particle_qd)
         self.recorded = True
 
     def interrupted(self, total: str) -> SimulationInterrupted:
+        """The error a driver raises when the run is interrupted (Ctrl-C), with the frames so far.
+
+        Parameters
+        ----------
+        total : str
+            How far the run got, for the message (``"step 40 of 100"``).
+
+        Returns
+        -------
+        SimulationInterrupted
+            Carrying the trajectory (the last completed state included) and the number of completed steps.
+        """
         return SimulationInterrupted(f"interrupted after {total}; {self.kept()}", self.trajectory(keep_last=True),
                                      step=self.steps)
 
     def stopped(self, err: SpringsimError, step: int, t_new: float) -> SimulationError:
+        """The error a driver raises when a step raised ``err`` (a solver error), with the frames so far.
+
+        Parameters
+        ----------
+        err : SpringsimError
+            What the step raised.
+        step : int
+            Number of that step (from 1).
+        t_new : float
+            Simulated time [s] the step was to reach.
+
+        Returns
+        -------
+        SimulationError
+            Naming the step and ``err``, carrying the trajectory (the last completed state included).
+        """
         return SimulationError(f"simulation stopped at step {step} (t={t_new:g} s): {type(err).__name__}: {err}; "
                                f"{self.kept()}", self.trajectory(keep_last=True), step=step)
 
     def finish(self) -> Trajectory | None:
         """The trajectory (None on processes other than the root), after reporting energy growth, failed steps and
-        fallbacks once (warnings, on the root)."""
+        fallbacks once (warnings, on the root).
+
+        Returns
+        -------
+        Trajectory or None
+        """
         traj = self.trajectory()
         if traj is not None:
             self.check_energy_growth(traj)
@@ -369,7 +529,13 @@ class RunRecorder:
         :data:`ENERGY_GROWTH` of the start's energy scale, and in a damped scene fail the step of that frame.
 
         Only the recorded frames are checked (no cost per step); the energy bound catches the larger blow-ups on
-        every step. Bounded oscillations of a symplectic method stay below the threshold."""
+        every step. Bounded oscillations of a symplectic method stay below the threshold.
+
+        Parameters
+        ----------
+        traj : Trajectory
+            The run's frames and step statistics (a failed step is marked in them).
+        """
         terms = self.system.terms
         if self.bound is None or traj.frame_count < 2 or not all(t.conservative or t.dissipative for t in terms):
             return
@@ -395,6 +561,15 @@ def report(traj: Trajectory, integrator, stacklevel: int = 2) -> None:
     """Warn once about the run's steps that are not ``ok`` and once about linear-solver fallbacks.
 
     Honours the integrator's ``on_nonconvergence`` (``"ignore"``: no warning).
+
+    Parameters
+    ----------
+    traj : Trajectory
+        The run.
+    integrator : Integrator
+        The integrator that made it (its name goes in the messages).
+    stacklevel : int
+        ``stacklevel`` of the warnings.
     """
     if getattr(integrator, "on_nonconvergence", "warn") == "ignore":
         return

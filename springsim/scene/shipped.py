@@ -21,7 +21,13 @@ _HERE = Path(__file__).resolve().parent
 
 
 def scene_directory() -> Path | None:
-    """The directory of the shipped scenes: the package data of an installed springsim, else a checkout's ``scenes/``."""
+    """The directory of the shipped scenes: the package data of an installed springsim, else a checkout's ``scenes/``.
+
+    Returns
+    -------
+    pathlib.Path or None
+        The first of the two that holds a ``*.yaml`` file; None when neither does.
+    """
     for d in (_HERE / "data", _HERE.parents[1] / "scenes"):
         if d.is_dir() and any(d.glob("*.yaml")):
             return d
@@ -29,7 +35,13 @@ def scene_directory() -> Path | None:
 
 
 def shipped_scenes() -> dict[str, Path]:
-    """Name (the file's stem) -> path of every shipped scene, sorted by name."""
+    """Name (the file's stem) -> path of every shipped scene, sorted by name.
+
+    Returns
+    -------
+    dict of str to pathlib.Path
+        In natural order (``cloth_8`` before ``cloth_16``); empty without :func:`scene_directory`.
+    """
     d = scene_directory()
     if d is None:
         return {}
@@ -39,6 +51,15 @@ def shipped_scenes() -> dict[str, Path]:
 
 def shipped_scene(name: str) -> Path:
     """The path of the shipped scene ``name`` (``"cloth_16"`` or ``"cloth_16.yaml"``).
+
+    Parameters
+    ----------
+    name : str
+        The scene's name, with or without ``.yaml`` (or ``.yml``).
+
+    Returns
+    -------
+    pathlib.Path
 
     Raises
     ------
@@ -55,8 +76,22 @@ def shipped_scene(name: str) -> Path:
 def resolve_scene(arg) -> Path:
     """The scene file of a command-line argument: an existing path, else the shipped scene of that bare name.
 
-    A name with a directory part (``scenes/x.yaml``) is always a path. A missing file that is not the
-    name of a shipped scene raises :class:`SceneError` ``"<arg>: no such file ..."``.
+    A name with a directory part (``scenes/x.yaml``) is always a path.
+
+    Parameters
+    ----------
+    arg : str or PathLike
+        A file path or the name of a shipped scene (:func:`shipped_scene`).
+
+    Returns
+    -------
+    pathlib.Path
+        The path (not checked further when the file exists or ``arg`` has a directory part).
+
+    Raises
+    ------
+    SceneError
+        ``"<arg>: no such file ..."``: a missing file that is not the name of a shipped scene.
     """
     path = Path(arg)
     text = os.fspath(arg)
@@ -71,7 +106,19 @@ def resolve_scene(arg) -> Path:
 
 @dataclass(frozen=True)
 class SceneInfo:
-    """One row of ``springsim scenes``."""
+    """One row of ``springsim scenes``.
+
+    Attributes
+    ----------
+    name : str
+        The file's stem.
+    particles, springs : int
+        Particle and spring counts of the scene's model.
+    description : str
+        One line: the scene's ``description:``, else the file's first comment line, else empty.
+    path : pathlib.Path
+        The scene file.
+    """
 
     name: str
     particles: int
@@ -92,7 +139,22 @@ def _first_comment_line(path: Path) -> str:
 
 def scene_info(path) -> SceneInfo:
     """Name, particle and spring counts and the one-line description (``description:``, else the file's
-    first comment line) of a scene file."""
+    first comment line) of a scene file.
+
+    Parameters
+    ----------
+    path : str or PathLike
+        A scene file; it is loaded (:func:`~springsim.scene.load_scene`).
+
+    Returns
+    -------
+    SceneInfo
+
+    Raises
+    ------
+    SceneError
+        The file is missing, unreadable or not a valid scene (:func:`~springsim.scene.load_scene`).
+    """
     from .yaml_io import load_scene
 
     path = Path(path)

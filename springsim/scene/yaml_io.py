@@ -182,6 +182,8 @@ class Scene:
         File path, or ``"<string>"`` for text.
     name : str
         The scene's ``name:`` or the file's stem.
+    metadata : dict
+        The scene's other information: ``description`` (its ``description:``, empty when not given).
     sha256 : str
         SHA-256 (hex) of the bytes the scene was loaded from (the file as it was read, or the
         UTF-8 of the text); empty for scenes built from a parsed document.

@@ -58,18 +58,50 @@ class System(ABC):
 
     # -- set-up -------------------------------------------------------------------------------------------------
     def metadata(self) -> dict:
-        """What a trajectory's ``meta`` records of the backend (``backend``, and its own keys)."""
+        """What a trajectory's ``meta`` records of the backend (``backend``, and its own keys).
+
+        Returns
+        -------
+        dict
+            ``{"backend": "serial"}`` here; a backend overrides it with its own (the PETSc one: ``"petsc"``, ``ranks``,
+            ``partitioner``).
+        """
         return {"backend": "serial"}
 
     @abstractmethod
     def local_state(self, q: np.ndarray, qd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The state arrays of this process from full (N, 3) positions [m] and velocities [m/s] (copies)."""
+        """The state arrays of this process from full (N, 3) positions [m] and velocities [m/s] (copies).
+
+        Parameters
+        ----------
+        q : ndarray, shape (N, 3)
+            Positions [m] of every particle of the model.
+        qd : ndarray, shape (N, 3)
+            Velocities [m/s] of every particle of the model.
+
+        Returns
+        -------
+        q, qd : ndarray, shape (n, 3)
+            Float64 copies of the rows this process holds.
+        """
 
     @abstractmethod
     def gather_state(self, q: np.ndarray, qd: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None]:
         """Full (N, 3) copies of the state arrays ``(q, qd)`` on the root process, ``(None, None)`` elsewhere.
 
         Collective: every process calls it. Fixed particles take their positions from the model.
+
+        Parameters
+        ----------
+        q : ndarray, shape (n, 3)
+            Positions [m] of this process's state layout.
+        qd : ndarray, shape (n, 3)
+            Velocities [m/s] of this process's state layout.
+
+        Returns
+        -------
+        q, qd : ndarray, shape (N, 3), or None
+            Every particle's positions and velocities on the root process; None on the others.
         """
 
     # -- linear algebra set-up ----------------------------------------------------------------------------------
@@ -81,7 +113,12 @@ class System(ABC):
     @abstractmethod
     def default_jacobian(self) -> str:
         """The Jacobian mode integrators use when none is given: ``"spd"`` where the solver needs a symmetric
-        positive definite matrix, else ``"exact"``."""
+        positive definite matrix, else ``"exact"``.
+
+        Returns
+        -------
+        {"spd", "exact"}
+        """
 
     # -- forces -------------------------------------------------------------------------------------------------
     @abstractmethod
@@ -89,31 +126,102 @@ class System(ABC):
                damping_geometry: np.ndarray | None = None) -> np.ndarray:
         """Total force [N] on the particles of the state layout at ``(q, qd)``, into ``out``; returns ``out``.
 
-        ``damping_geometry``: positions at which the dissipative terms take their geometry (the spring
-        directions) instead of ``q`` (:meth:`springsim.forces.ForceTerm.eval_force`).
+        Parameters
+        ----------
+        q : ndarray, shape (n, 3)
+            Positions [m].
+        qd : ndarray, shape (n, 3)
+            Velocities [m/s].
+        out : ndarray, shape (n, 3)
+            Output array, overwritten with the force [N].
+        damping_geometry : ndarray, shape (n, 3), optional
+            Positions [m] at which the dissipative terms take their geometry (the spring directions) instead
+            of ``q`` (:meth:`springsim.forces.ForceTerm.eval_force`).
+
+        Returns
+        -------
+        ndarray, shape (n, 3)
+            ``out``.
         """
 
     @abstractmethod
     def forces_discrete(self, q0: np.ndarray, q1: np.ndarray, qd: np.ndarray, out: np.ndarray) -> np.ndarray:
         """The energy-momentum force over the step from ``q0`` to ``q1`` with the velocity ``qd``
-        (:meth:`springsim.forces.ForceTerm.eval_force_discrete`), into ``out``."""
+        (:meth:`springsim.forces.ForceTerm.eval_force_discrete`), into ``out``.
+
+        Parameters
+        ----------
+        q0, q1 : ndarray, shape (n, 3)
+            Positions [m] at the start and the end of the step.
+        qd : ndarray, shape (n, 3)
+            Midpoint velocity [m/s].
+        out : ndarray, shape (n, 3)
+            Output array, overwritten with the force [N].
+
+        Returns
+        -------
+        ndarray, shape (n, 3)
+            ``out``.
+        """
 
     @abstractmethod
     def potential_energy(self, q: np.ndarray) -> float:
         """Potential energy [J] of the conservative terms at ``q``, summed over every process.
 
         Pairs between fixed particles are left out (a constant), so only differences are meaningful.
+
+        Parameters
+        ----------
+        q : ndarray, shape (n, 3)
+            Positions [m].
+
+        Returns
+        -------
+        float
+            Potential energy [J].
         """
 
     @abstractmethod
     def dissipation(self, geometry: np.ndarray, qd: np.ndarray) -> float:
         """Rayleigh dissipation function ``1/2 qd^T D qd`` [W] of the dissipative terms with their geometry at
-        ``geometry``, summed over every process (:meth:`springsim.forces.ForceTerm.dissipation`)."""
+        ``geometry``, summed over every process (:meth:`springsim.forces.ForceTerm.dissipation`).
+
+        Parameters
+        ----------
+        geometry : ndarray, shape (n, 3)
+            Positions [m] that give the dissipative terms their geometry.
+        qd : ndarray, shape (n, 3)
+            Velocities [m/s].
+
+        Returns
+        -------
+        float
+            Dissipation function [W].
+        """
 
     def stage_terms(self, q: np.ndarray, qd: np.ndarray, out: np.ndarray, geometry: np.ndarray) -> tuple[float, float]:
         """:meth:`forces` with ``damping_geometry=geometry`` into ``out``, and ``(potential_energy(q),
         dissipation(geometry, qd))``: what a minimisation stage evaluates at each trial (a backend may share the
-        work of the three, as the PETSc one shares its ghost exchange)."""
+        work of the three, as the PETSc one shares its ghost exchange).
+
+        Parameters
+        ----------
+        q : ndarray, shape (n, 3)
+            Positions [m] of the trial.
+        qd : ndarray, shape (n, 3)
+            Velocities [m/s] of the trial.
+        out : ndarray, shape (n, 3)
+            Output array, overwritten with the force [N].
+        geometry : ndarray, shape (n, 3)
+            Positions [m] that give the dissipative terms their geometry.
+
+        Returns
+        -------
+        potential : float
+            :meth:`potential_energy` at ``q`` [J].
+        dissipation : float
+            :meth:`dissipation` at ``(geometry, qd)`` [W].
+        """
         self.forces(q, qd, out, damping_geometry=geometry)
         return self.potential_energy(q), self.dissipation(geometry, qd)
 
@@ -121,7 +229,20 @@ class System(ABC):
     def curvature_forces(self, q0: np.ndarray, q1: np.ndarray, out: np.ndarray) -> np.ndarray | None:
         """The forces [N] of the terms' length remainders between ``q0`` and ``q1``
         (:meth:`springsim.forces.ForceTerm.curvature_remainder`) into ``out``, or None where no term (on any
-        process) has such lengths."""
+        process) has such lengths.
+
+        Parameters
+        ----------
+        q0, q1 : ndarray, shape (n, 3)
+            Positions [m] of the linearisation and of the trial.
+        out : ndarray, shape (n, 3)
+            Output array, overwritten with the force [N] when some term has curved lengths.
+
+        Returns
+        -------
+        ndarray, shape (n, 3), or None
+            ``out``, or None (``out`` untouched) when no term has such lengths.
+        """
 
     # -- stage matrices and solves ------------------------------------------------------------------------------
     @abstractmethod
@@ -130,14 +251,42 @@ class System(ABC):
         """``A = M - a dF/dq - b dF/dqd`` at ``(q, qd)`` over the free DOFs.
 
         The returned matrix supports ``A @ x`` on DOF vectors and is valid until the next assembly.
-        ``q_start`` selects the energy-momentum Jacobians (:meth:`springsim.assembly.SystemAssembler.assemble`);
-        ``damping_geometry`` evaluates ``dF/dqd`` with the dissipative terms' geometry there.
+
+        Parameters
+        ----------
+        q : ndarray, shape (n, 3)
+            Positions [m] at which the Jacobians are evaluated.
+        qd : ndarray, shape (n, 3)
+            Velocities [m/s] at which the Jacobians are evaluated.
+        a : float
+            Coefficient [s^2] of the position Jacobian ``dF/dq`` (implicit Euler: ``h^2``).
+        b : float
+            Coefficient [s] of the velocity Jacobian ``dF/dqd`` (implicit Euler: ``h``).
+        mode : {"exact", "symmetric", "spd", "mixed"}
+            Jacobian mode (:data:`springsim.forces.JACOBIAN_MODES`).
+        q_start : ndarray, shape (n, 3), optional
+            Selects the energy-momentum Jacobians over the step from ``q_start`` to ``2 q - q_start``
+            (:meth:`springsim.assembly.SystemAssembler.assemble`).
+        damping_geometry : ndarray, shape (n, 3), optional
+            Positions [m] at which the dissipative terms take their geometry for ``dF/dqd``.
+
+        Returns
+        -------
+        matrix
+            The stage matrix [kg] (serially a :class:`~springsim.assembly.SystemMatrix`, distributed a PETSc
+            ``Mat``), reused by the next assembly.
         """
 
     @abstractmethod
     def linearize_at(self, q: np.ndarray) -> None:
         """Make ``q`` the previous linearisation of the ``mixed`` Jacobian mode
-        (:meth:`springsim.assembly.SystemAssembler.linearize_at`): a step's stages then depend only on its input."""
+        (:meth:`springsim.assembly.SystemAssembler.linearize_at`): a step's stages then depend only on its input.
+
+        Parameters
+        ----------
+        q : ndarray, shape (n, 3)
+            Positions [m] of the linearisation.
+        """
 
     @property
     @abstractmethod
@@ -147,38 +296,131 @@ class System(ABC):
     @abstractmethod
     def solve(self, A, rhs: np.ndarray, *, x0: np.ndarray | None = None, rtol: float | None = None):
         """Solve ``A x = rhs`` (DOF vectors): a :class:`~springsim.linsolve.LinearSolveResult` whose ``x`` is a
-        DOF vector. ``rtol`` overrides :attr:`linear_rtol` for this solve."""
+        DOF vector. ``rtol`` overrides :attr:`linear_rtol` for this solve.
+
+        Parameters
+        ----------
+        A : matrix
+            A stage matrix from :meth:`assemble`.
+        rhs : ndarray, shape (3 F_local,)
+            Right-hand side (DOF vector).
+        x0 : ndarray, shape (3 F_local,), optional
+            Initial guess of the iterative solvers; default zero.
+        rtol : float, optional
+            Relative residual tolerance of this solve; default :attr:`linear_rtol`.
+
+        Returns
+        -------
+        LinearSolveResult
+            The solution ``x`` (DOF vector) and the solve's statistics.
+        """
 
     @abstractmethod
     def precision_loss(self, A) -> float:
         """Relative precision to which ``A`` holds the particle masses, max over processes
-        (:meth:`springsim.assembly.SystemAssembler.precision_loss`)."""
+        (:meth:`springsim.assembly.SystemAssembler.precision_loss`).
+
+        Parameters
+        ----------
+        A : matrix
+            A stage matrix from :meth:`assemble`.
+
+        Returns
+        -------
+        float
+            ``u max_i max|D_i| / m_i``; above 1 the masses are lost in rounding.
+        """
 
     # -- layouts ------------------------------------------------------------------------------------------------
     @abstractmethod
     def gather(self, x: np.ndarray) -> np.ndarray:
-        """The DOF vector of the free particles of a state array ``x`` (n, 3)."""
+        """The DOF vector of the free particles of a state array ``x`` (n, 3).
+
+        Parameters
+        ----------
+        x : ndarray, shape (n, 3)
+            A state array.
+
+        Returns
+        -------
+        ndarray, shape (3 F_local,)
+            Its free rows, flattened (a view where possible).
+        """
 
     @abstractmethod
     def scatter_add(self, target: np.ndarray, dx: np.ndarray, scale: float = 1.0) -> None:
-        """``target[free] += scale * dx`` for a state array ``target`` and a DOF vector ``dx``."""
+        """``target[free] += scale * dx`` for a state array ``target`` and a DOF vector ``dx``.
+
+        Parameters
+        ----------
+        target : ndarray, shape (n, 3)
+            State array, added to in place.
+        dx : ndarray, shape (3 F_local,)
+            DOF vector.
+        scale : float
+            Factor of ``dx``; default 1.
+        """
 
     # -- reductions (collective) --------------------------------------------------------------------------------
     @abstractmethod
     def sum(self, value: float) -> float:
-        """``value`` summed over every process."""
+        """``value`` summed over every process.
+
+        Parameters
+        ----------
+        value : float
+            This process's part.
+
+        Returns
+        -------
+        float
+            The sum, the same on every process.
+        """
 
     @abstractmethod
     def max(self, value: float) -> float:
-        """The largest ``value`` over every process."""
+        """The largest ``value`` over every process.
+
+        Parameters
+        ----------
+        value : float
+            This process's value.
+
+        Returns
+        -------
+        float
+            The maximum, the same on every process.
+        """
 
     @abstractmethod
     def all(self, flag: bool) -> bool:
-        """Whether ``flag`` holds on every process."""
+        """Whether ``flag`` holds on every process.
+
+        Parameters
+        ----------
+        flag : bool
+            This process's flag.
+
+        Returns
+        -------
+        bool
+            The conjunction, the same on every process.
+        """
 
     @abstractmethod
     def free_rows(self, x: np.ndarray) -> np.ndarray:
-        """The rows of the free particles of a state array (``x`` itself where every row is free)."""
+        """The rows of the free particles of a state array (``x`` itself where every row is free).
+
+        Parameters
+        ----------
+        x : ndarray, shape (n, 3)
+            A state array.
+
+        Returns
+        -------
+        ndarray, shape (F_local, 3)
+            The free rows (a copy when some rows are fixed).
+        """
 
     @property
     @abstractmethod
@@ -186,20 +428,64 @@ class System(ABC):
         """Free DOFs of the whole system (every process)."""
 
     def norm(self, x: np.ndarray) -> float:
-        """2-norm over the free particles of a state array, or of a DOF vector, over every process."""
+        """2-norm over the free particles of a state array, or of a DOF vector, over every process.
+
+        Parameters
+        ----------
+        x : ndarray, shape (n, 3) or (3 F_local,)
+            A state array or a DOF vector.
+
+        Returns
+        -------
+        float
+            The 2-norm, the same on every process.
+        """
         y = (self.free_rows(x) if x.ndim == 2 else x).reshape(-1)
         return float(np.sqrt(self.sum(float(np.dot(y, y)))))
 
     def dot(self, x: np.ndarray, y: np.ndarray) -> float:
-        """Inner product over the free particles of two state arrays (or of two DOF vectors), over every process."""
+        """Inner product over the free particles of two state arrays (or of two DOF vectors), over every process.
+
+        Parameters
+        ----------
+        x, y : ndarray, shape (n, 3) or (3 F_local,)
+            Two state arrays or two DOF vectors.
+
+        Returns
+        -------
+        float
+            The inner product, the same on every process.
+        """
         if x.ndim == 2:
             x, y = self.free_rows(x), self.free_rows(y)
         return self.sum(float(np.dot(x.reshape(-1), y.reshape(-1))))
 
     def all_finite(self, *arrays: np.ndarray) -> bool:
-        """Whether every array is finite on every process."""
+        """Whether every array is finite on every process.
+
+        Parameters
+        ----------
+        *arrays : ndarray
+            Arrays of this process (every entry counts, fixed rows included).
+
+        Returns
+        -------
+        bool
+            The same on every process.
+        """
         return self.all(all(bool(np.all(np.isfinite(a))) for a in arrays))
 
     def all_equal(self, x: np.ndarray, y: np.ndarray) -> bool:
-        """Whether two state arrays are equal on every process."""
+        """Whether two state arrays are equal on every process.
+
+        Parameters
+        ----------
+        x, y : ndarray, shape (n, 3)
+            State arrays.
+
+        Returns
+        -------
+        bool
+            The same on every process.
+        """
         return self.all(bool(np.array_equal(x, y)))
