@@ -20,7 +20,6 @@ class IntegratorImplicitEuler(ImplicitIntegrator):
     """Implicit Euler; options as :class:`~springsim.integrators.ImplicitIntegrator`."""
 
     name = "implicit_euler"
-    unused_options = frozenset({"filter_estimates"})  # no error estimate
 
     def advance(self, q, v, h, stats):
         q1, v1, _ = self.solve_stage(q, v, h, v, stats, guesses=self.predict(v, h))
