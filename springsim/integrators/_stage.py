@@ -861,7 +861,9 @@ class StageSolver:
             if not final_residual and it == maxiter - 1:  # nothing reads the last residual: not computed
                 alpha, (v, q, R, rnorm, ratio) = 1.0, trial(1.0, judged=False)
             else:
-                alpha, (v, q, R, rnorm, ratio) = backtrack(trial, rnorm, enabled=search, min_step=o.min_step)
+                # min_step read only where the rule searches (NewtonOptions declares which rules read it)
+                alpha, (v, q, R, rnorm, ratio) = backtrack(trial, rnorm, enabled=search,
+                                                           min_step=o.min_step if search else 1.0)
             stats.extra["min_line_search_step"] = min(alpha, stats.extra.get("min_line_search_step", 1.0))
             if not np.isfinite(step):
                 break
