@@ -253,3 +253,30 @@ def test_unused_options_follow_the_declared_reads():
     cfg = SolverConfig(integrator="implicit_euler", dt=0.01, stage_solver="pa2", force_rtol=1e-3, newton_tol=1e-6)
     integ = make_integrator("implicit_euler", benchmark_cloth(3), **{"stage_solver": "pa2"})
     assert cfg.unused(integ) == ["force_rtol"]
+
+
+def test_kernels_options_share_one_vocabulary():
+    """The forces' ``force_kernels`` and the AMG preconditioner's ``kernels`` take the same values, checked by
+    one function; the AMG's former ``"scipy"`` maps to ``"numpy"`` with a DeprecationWarning on both."""
+    from springsim._runtime.accel import KERNELS, check_kernels
+    from springsim.forces import make_force_terms
+    from springsim.linsolve import make_linear_solver
+
+    assert KERNELS == ("auto", "numba", "numpy")
+    assert [check_kernels(k) for k in KERNELS] == list(KERNELS)
+    model = benchmark_cloth(3)
+    for value in KERNELS:
+        make_force_terms(model, kernels=value)
+        assert make_linear_solver("amg-cg", kernels=value).preconditioner.kernels in ("numba", "numpy")
+    for build in (lambda k: make_force_terms(model, kernels=k),
+                  lambda k: make_integrator("symplectic_euler", model, force_kernels=k),
+                  lambda k: make_linear_solver("amg-cg", kernels=k)):
+        with pytest.raises(ValueError, match="^kernels must be one of 'auto', 'numba', 'numpy', got 'fortran'$"):
+            build("fortran")
+        with pytest.warns(DeprecationWarning, match="^kernels='scipy' is deprecated; use 'numpy'"):
+            build("scipy")
+    with pytest.warns(DeprecationWarning):
+        assert make_linear_solver("amg-cg", kernels="scipy").preconditioner.kernels == "numpy"
+    with pytest.warns(DeprecationWarning):
+        assert all(getattr(t, "kernels", "numpy") == "numpy"
+                   for t in make_force_terms(benchmark_cloth(40), kernels="scipy"))
