@@ -33,7 +33,7 @@ from ..integrators._options import (LinearSolveOptions, OptionGroup, check_optio
                                     option, renamed)
 from ..integrators._stage import NewtonOptions
 
-__all__ = ["ADAPTIVE_H_MIN", "BACKENDS", "MAX_STEPS", "DEFAULT_STEPS", "LinearSolveOptions", "NewtonOptions",
+__all__ = ["ADAPTIVE_H_MIN", "BACKENDS", "MAX_STEPS", "DEFAULT_STEPS",
            "SolverConfig", "TimeStepOptions", "option", "describe_int", "steps_for_duration"]
 
 #: Largest number of steps a run may ask for (a guard against overflowing step counts).

@@ -280,3 +280,24 @@ def test_kernels_options_share_one_vocabulary():
     with pytest.warns(DeprecationWarning):
         assert all(getattr(t, "kernels", "numpy") == "numpy"
                    for t in make_force_terms(benchmark_cloth(40), kernels="scipy"))
+
+
+def test_scene_format_lists_every_yaml_option():
+    """docs/scene-format.md's solver table has a row for every YAML key the declarations give, with the declared
+    default of those that have a value."""
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[2] / "docs" / "scene-format.md").read_text()
+    rows = {}
+    for line in text.split("## `solver`")[1].split("\n\n")[1].splitlines()[2:]:
+        cells = [c.strip() for c in line.strip("|").split(" | ")]
+        for key in re.findall(r"`([a-z_]+)`", cells[0]):
+            rows[key] = cells[2]
+    for name in YAML_FIELDS:
+        key = SolverConfig.yaml_key(name)
+        assert key in rows, key
+        d = DECL[name][1].metadata["default"]
+        if isinstance(d, float):
+            assert float(rows[key].split()[0]) == d, (key, rows[key])
+        elif isinstance(d, str) and name != "integrator":
+            assert f"`{d}`" in rows[key], (key, rows[key])
