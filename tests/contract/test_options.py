@@ -301,3 +301,26 @@ def test_scene_format_lists_every_yaml_option():
             assert float(rows[key].split()[0]) == d, (key, rows[key])
         elif isinstance(d, str) and name != "integrator":
             assert f"`{d}`" in rows[key], (key, rows[key])
+
+
+@pytest.mark.parametrize("cls", [NewtonOptions, LinearSolveOptions, TimeStepOptions])
+def test_group_docstrings_state_the_declared_defaults(cls):
+    """A group's docstring documents each field; where it states a default value, it is the declared one."""
+    doc = cls.__doc__
+    params = doc.split("Parameters\n    ----------\n")[1].split("\n    Raises")[0]
+    entries = re.split(r"\n    (?=[a-z_, ]+ : )", "\n" + params)
+    by_name = {}
+    for entry in filter(str.strip, entries):
+        head, _, body = entry.strip().partition(" : ")
+        for name in head.split(", "):
+            by_name[name] = " ".join(body.split())
+    assert set(by_name) == set(cls.declarations()), set(cls.declarations()) ^ set(by_name)
+    for name, f in cls.declarations().items():
+        d, text = f.metadata["default"], by_name[name]
+        if isinstance(d, bool) or isinstance(d, str):
+            assert str(d) in text, (name, text)
+        elif isinstance(d, float) and name != "linear_rtol":
+            numbers = [float(x) for x in re.findall(r"(?<![\w.*])\d+(?:\.\d+)?(?:e-?\d+)?(?![\w*])", text)]
+            assert d in numbers, (name, text)
+    if cls is LinearSolveOptions:
+        assert "DEFAULT_RTOL" in by_name["linear_rtol"]
