@@ -19,7 +19,7 @@ from pathlib import Path
 
 from ..errors import EnergyGrowthWarning, SceneError, SimulationInterrupted, SpringsimError, SpringsimWarning
 from ..forces._data import data_terms, term_group
-from ..run.options import BACKENDS, SolverConfig
+from ..run.options import SolverConfig
 from .session import _stopped_by, interrupt_status, signals_deferred
 
 __all__ = ["add_run_options", "load_and_configure", "configured_integrator", "execute", "warn_failed_steps",
@@ -35,17 +35,7 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
     p : argparse.ArgumentParser
         The command's parser.
     """
-    from ..distributed.partition import PARTITIONERS
-    from ..forces import JACOBIAN_MODES
-    from ..integrators import INTEGRATORS
-    from ..integrators._implicit import FORCING_RULES, STAGE_SOLVERS
-    from ..linsolve import DEFAULT_RTOL, LINEAR_SOLVERS
-
-    SolverConfig.add_arguments(p, choices={"integrator": list(INTEGRATORS), "linear_solver": list(LINEAR_SOLVERS),
-                                           "jacobian": list(JACOBIAN_MODES), "backend": list(BACKENDS),
-                                           "partitioner": list(PARTITIONERS), "forcing": list(FORCING_RULES),
-                                           "stage_solver": list(STAGE_SOLVERS)},
-                               defaults={"linear_rtol": DEFAULT_RTOL})
+    SolverConfig.add_arguments(p)
     g = p.add_mutually_exclusive_group()
     g.add_argument("-v", "--verbose", action="count", default=0,
                    help="also log every set-up phase with its time (default: progress every few seconds and "
@@ -74,7 +64,7 @@ def load_and_configure(args: argparse.Namespace):
     args.scene = str(resolve_scene(args.scene))  # a bare name (cloth_64) is a shipped scene
     with phase(f"loading {args.scene}"):
         scene = load_scene(Path(args.scene))  # always a path on the command line, never YAML text
-    names = [f for f in SolverConfig._fields() if hasattr(args, f)]
+    names = [name for name in SolverConfig.declarations() if hasattr(args, name)]
     cfg = scene.config.with_overrides(**{name: getattr(args, name) for name in names})
     return scene, cfg
 
@@ -105,7 +95,7 @@ def configured_integrator(cfg: SolverConfig, model):
     """
     from ..integrators import make_integrator
 
-    by_kwarg = {(f.metadata["kwarg"] or f.name): f.name for f in SolverConfig._fields().values()}
+    by_kwarg = {SolverConfig.keyword(name): name for name in SolverConfig.declarations()}
     opts = cfg.integrator_options()
     try:
         if cfg.backend == "petsc":
@@ -114,11 +104,8 @@ def configured_integrator(cfg: SolverConfig, model):
             if opts.pop("solver", "auto") != "auto":
                 raise SceneError("solver", "the petsc backend solves with PETSc's KSP; choose its method with "
                                            "petsc_options (-ksp_type, -pc_type)")
-            rtol = opts.pop("solver_options", {}).get("rtol")
-            if rtol is not None:  # else make_distributed's default
-                opts["linear_rtol"] = rtol
             return make_distributed(model, cfg.integrator, petsc_options=cfg.petsc_options,
-                                    partitioner=cfg.partitioner or "contiguous", **opts)
+                                    partitioner=cfg.partitioner or cfg.default("partitioner"), **opts)
         return make_integrator(cfg.integrator, model, **opts)
     except SceneError as e:
         name = by_kwarg.get(e.path)
@@ -179,8 +166,7 @@ def execute(scene, cfg, *, record: bool = True, frame_every: int = 1, progress=T
                                    f"{cfg.dt * frame_every:g} s)" if cfg.adaptive else
                      f"{steps} step(s) of {cfg.dt:g} s with {cfg.integrator}")
         if cfg.adaptive:  # frames every dt
-            rtol = cfg.time_rtol if cfg.time_rtol is not None else cfg.time_atol
-            atol = cfg.time_atol if cfg.time_atol is not None else cfg.time_rtol
+            rtol, atol = cfg.time.tolerances()
             traj = simulate_adaptive(scene.model, integrator, steps * cfg.dt, time_rtol=rtol, time_atol=atol,
                                      frame_dt=cfg.dt * frame_every if record else None,
                                      h0=cfg.dt, h_max=cfg.max_step,  # the driver clips h0 to h_max
@@ -317,8 +303,9 @@ def summary_lines(scene, cfg, integrator, traj) -> list[tuple[str, str]]:
         rows.append(("per step (rank 0)", ", ".join(f"{k[:-2]} {_fmt_s(v / s['steps'])}" for k, v in tm.items()
                                                     if v)))
     if cfg.adaptive:
-        rows.append(("time tolerances", f"time_rtol {cfg.time_rtol or cfg.time_atol:g}, "
-                                        f"time_atol {cfg.time_atol or cfg.time_rtol:g}"))
+        rtol, atol = cfg.time.tolerances()
+        rows.append(("time tolerances", f"time_rtol {rtol:g}, "
+                                        f"time_atol {atol:g}"))
     return rows
 
 
@@ -466,8 +453,6 @@ def load_trajectory_for(path, scene, scene_path):
 def _provenance(traj, scene, cfg, scene_path=None) -> None:
     """Add the scene's SHA-256 (of the bytes loaded, :attr:`Scene.sha256`: the file is not read again, so a scene
     moved, deleted or edited during the run changes nothing) and the run options to ``traj.meta``."""
-    import dataclasses
-
     if scene.sha256:
         traj.meta["scene_sha256"] = scene.sha256
-    traj.meta["run_options"] = {k: v for k, v in dataclasses.asdict(cfg).items() if v is not None}
+    traj.meta["run_options"] = {k: v for k, v in cfg.flat().items() if v is not None}

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._runtime.accel import check_kernels
 from ._base import JACOBIAN_MODES, PROJECTED_MODES, BlockLayout, Blocks, ForceTerm
 from ._data import ArraySpec, data_terms
 from .drag import ForceDrag
@@ -31,7 +32,8 @@ def make_force_terms(model, *, skip_fixed: bool = True, kernels: str = "auto") -
     """Instantiate only the force terms ``model`` uses.
 
     ``kernels``: ``"auto"`` (compiled force passes where numba is installed and the term is large enough),
-    ``"numba"`` or ``"numpy"`` (the pure path), passed to every term's :meth:`ForceTerm.from_model`.
+    ``"numba"`` or ``"numpy"`` (the pure path; :mod:`springsim._runtime.accel` documents the values, which every
+    ``kernels`` option shares), checked once here and passed to every term's :meth:`ForceTerm.from_model`.
 
     Parameters
     ----------
@@ -46,7 +48,13 @@ def make_force_terms(model, *, skip_fixed: bool = True, kernels: str = "auto") -
     -------
     list of ForceTerm
         In the order of :data:`FORCE_TERMS`.
+
+    Raises
+    ------
+    ValueError
+        For a ``kernels`` value that is not one of :data:`springsim._runtime.accel.KERNELS`.
     """
+    kernels = check_kernels(kernels)
     terms = (cls.from_model(model, skip_fixed=skip_fixed, kernels=kernels) for cls in FORCE_TERMS.values())
     return [t for t in terms if t is not None]
 

@@ -60,7 +60,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._runtime.accel import resolve
+from .._runtime.accel import KERNELS, resolve
 from ._base import (PROJECTED_MODES, BlockLayout, Blocks, ForceTerm, PairIncidence, active_pairs, outer,
                     pair_geometry, scratch, step_pairs)
 from ._data import ArraySpec
@@ -98,8 +98,8 @@ class ForceSpring(ForceTerm):
         ArraySpec("rest_length", per="pair", unit="m", lo=0.0, computed=True,
                   doc="rest length l0; computed: the initial distance"),
     )
-    #: Accepted values of ``kernels``.
-    KERNELS = ("auto", "numba", "numpy")
+    #: Accepted values of ``kernels`` (:data:`springsim._runtime.accel.KERNELS`).
+    KERNELS = KERNELS
     #: ``kernels="auto"`` compiles the force pass from this many springs on.
     auto_min_pairs = 2048
 
@@ -118,7 +118,7 @@ class ForceSpring(ForceTerm):
         self._kd_damped = self.kd[self.damped]
         self._kd_zero = np.zeros_like(self.kd)  # the compiled pass without damping (frozen damping geometry)
         small = kernels == "auto" and self.pairs.shape[0] < self.auto_min_pairs
-        self.kernels = resolve("numpy" if small else kernels, "numpy", self.KERNELS)
+        self.kernels = resolve("numpy" if small else kernels)
         self._compiled = None  # the compiled force pass, with kernels="numba"
         if self.kernels == "numba":
             try:

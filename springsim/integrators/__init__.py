@@ -10,6 +10,8 @@ from ..errors import SceneError, UnusedOptionWarning, registered
 from ._base import PRECISION_LOSS_LIMIT, Integrator, StepStats
 from ..errors import ConvergenceWarning, NewtonConvergenceWarning
 from ._implicit import ImplicitIntegrator
+from ._options import LinearSolveOptions
+from ._stage import NewtonOptions
 from .explicit_euler import IntegratorExplicitEuler
 from .implicit_euler import IntegratorImplicitEuler
 from .linearized_implicit import IntegratorLinearizedImplicit
@@ -23,17 +25,26 @@ __all__ = ["INTEGRATORS", "Integrator", "ImplicitIntegrator", "StepStats", "PREC
            "NewtonConvergenceWarning",
            "IntegratorExplicitEuler", "IntegratorSymplecticEuler", "IntegratorMidpoint",
            "IntegratorLinearizedImplicit", "IntegratorImplicitEuler", "IntegratorBDF2", "IntegratorTRBDF2",
-           "IntegratorEnergyMomentum", "make_integrator", "integrator_class", "IMPLICIT_OPTIONS"]
+           "IntegratorEnergyMomentum", "make_integrator", "integrator_class", "IMPLICIT_OPTIONS", "NewtonOptions",
+           "LinearSolveOptions"]
 
 def _implicit_options() -> frozenset:
-    """The keyword options of :class:`ImplicitIntegrator`'s constructor beyond those of :class:`Integrator`'s."""
+    """The keyword options of :class:`ImplicitIntegrator`'s constructor beyond those of :class:`Integrator`'s (its
+    signature spells out the option groups' keywords, from their declarations).
+
+    Returns
+    -------
+    frozenset of str
+    """
     own = set(inspect.signature(Integrator.__init__).parameters)
     return frozenset(name for name, p in inspect.signature(ImplicitIntegrator.__init__).parameters.items()
                      if p.kind is p.KEYWORD_ONLY and name not in own)
 
 
-#: The options of the implicit integrators (``solver``, ``jacobian``, ``newton_tol``, ...), derived from the
-#: signature of :class:`ImplicitIntegrator`: the explicit integrators ignore them (their ``unused_options``).
+#: The options of the implicit integrators (``solver``, ``jacobian``, ``newton_tol``, ..., and the groups ``newton``
+#: and ``linear``), derived from the signature of :class:`ImplicitIntegrator` (which spells out the declared
+#: fields of :class:`NewtonOptions` and :class:`LinearSolveOptions`): the explicit integrators ignore them (their
+#: ``unused_options``).
 IMPLICIT_OPTIONS: frozenset = _implicit_options()
 Integrator.unused_options = IMPLICIT_OPTIONS
 
@@ -55,33 +66,61 @@ def integrator_class(name: str) -> type[Integrator]:
     return registered(INTEGRATORS, name, param="integrator", what="integrator")
 
 
-def make_integrator(name: str, model: Model, **options) -> Integrator:
+def make_integrator(name: str, model: Model, *, newton: NewtonOptions | None = None,
+                    linear: LinearSolveOptions | None = None, **options) -> Integrator:
     """Build the registered integrator ``name`` for ``model`` with keyword ``options``.
 
     Every integrator takes ``system`` (the backend, :mod:`springsim.system`; default serial) and
     ``force_kernels`` (``"auto"``, ``"numba"``, ``"numpy"``: the compiled spring force pass of the ``accel`` extra
-    or the pure path, see :func:`springsim.forces.make_force_terms`). Options of implicit integrators (see
-    :class:`ImplicitIntegrator`): ``solver``, ``solver_options``, ``linear_rtol``, ``stage_solver``, ``jacobian``,
-    ``force_rtol``, ``force_atol``, ``newton_tol``, ``newton_maxiter``, ``residual_rtol``,
-    ``on_nonconvergence``, ``line_search``, ``min_step``, ``escalate_jacobian``, ``escalate_after``,
-    ``forcing``, ``forcing_max``, ``retake_halvings``, ``filter_estimates``. Options the chosen integrator
-    or its stage rule does not use (Newton options for explicit or linearized methods, the residual rule's
-    tolerances with minimize stages, ...) are ignored with an :class:`~springsim.errors.UnusedOptionWarning`
-    naming them, never silently. ``linear_rtol`` is the linear solver's relative tolerance, the run option of
-    that name (``solver.linear_rtol``, ``--linear-rtol``): the same as ``solver_options={"rtol": ...}``.
+    or the pure path, see :func:`springsim.forces.make_force_terms`). The options of implicit integrators (see
+    :class:`ImplicitIntegrator`) come in two frozen groups, given as groups or field by field as keywords:
+    :class:`NewtonOptions` (``stage_solver``, ``jacobian``, ``force_rtol``, ``force_atol``, ``newton_tol``,
+    ``newton_maxiter``, ``residual_rtol``, ``forcing``, ``forcing_max``, ``line_search``, ``min_step``,
+    ``escalate_jacobian``, ``escalate_after``) and :class:`LinearSolveOptions` (``solver``, ``linear_rtol``);
+    besides them ``solver_options``, ``on_nonconvergence``, ``retake_halvings`` and ``filter_estimates``.
+    Options the chosen integrator or its stage rule does not read (derived from what each declares it reads:
+    Newton options for explicit or linearized methods, the residual rule's tolerances with minimize stages, ...)
+    are ignored with an :class:`~springsim.errors.UnusedOptionWarning` naming them, never silently.
+    ``linear_rtol`` is the linear solver's relative tolerance, the run option of that name
+    (``solver.linear_rtol``, ``--linear-rtol``): the same as ``solver_options={"rtol": ...}``.
+
+    Parameters
+    ----------
+    name : str
+        A key of :data:`INTEGRATORS`.
+    model : Model
+        The model to integrate.
+    newton : NewtonOptions, optional
+        The stage options as a group (a keyword may repeat one of its fields only with the same value).
+    linear : LinearSolveOptions, optional
+        The linear solve options as a group.
+    **options
+        Keyword options (above).
+
+    Returns
+    -------
+    Integrator
 
     Raises
     ------
     SceneError
         A ``ValueError`` whose path names the parameter (``integrator``, ``jacobian``, ...); ``linear_rtol``
         when it and ``solver_options["rtol"]`` are both given and differ.
+    TypeError
+        ``newton`` or ``linear`` of the wrong class, or an unknown keyword.
     """
     cls = integrator_class(name)
+    for group, cls_ in ((newton, NewtonOptions), (linear, LinearSolveOptions)):
+        if group is not None:  # the groups as keywords: one path for the unused-option check below
+            if not isinstance(group, cls_):
+                raise TypeError(f"expected a {cls_.__name__}, got {type(group).__name__}")
+            for field_name, value in group.given().items():
+                kw = cls_.keyword(field_name)
+                if options.get(kw) is not None and options[kw] != value:
+                    raise SceneError(kw, f"given twice: {kw}={options[kw]!r:.60} and {cls_.__name__}("
+                                         f"{field_name}={value!r:.60})")
+                options[kw] = value
     skip = cls.unused_options
-    if "solver_options" in skip:  # no linear solver: linear_rtol is unused like solver_options
-        skip = skip | {"linear_rtol"}
-    elif "linear_rtol" in options:
-        options = _linear_rtol_as_solver_option(options)
     unused = sorted(k for k, v in options.items() if k in skip and v is not None)
     integ = cls(model, **{k: v for k, v in options.items() if k not in skip})
     ignored = getattr(integ, "ignored_options", frozenset)()
@@ -91,18 +130,3 @@ def make_integrator(name: str, model: Model, **options) -> Integrator:
         warnings.warn(f"{name}{rule} does not use the option(s) {', '.join(unused)}; ignored", UnusedOptionWarning,
                       stacklevel=2)
     return integ
-
-
-def _linear_rtol_as_solver_option(options: dict) -> dict:
-    """``options`` with ``linear_rtol`` moved into ``solver_options["rtol"]`` (dropped when None)."""
-    options = dict(options)
-    rtol = options.pop("linear_rtol")
-    if rtol is None:
-        return options
-    solver_options = dict(options.get("solver_options") or {})
-    if "rtol" in solver_options and solver_options["rtol"] != rtol:
-        raise SceneError("linear_rtol", f"given twice: linear_rtol={rtol!r:.60} and solver_options['rtol']="
-                                        f"{solver_options['rtol']!r:.60}")
-    solver_options["rtol"] = rtol
-    options["solver_options"] = solver_options
-    return options

@@ -19,14 +19,15 @@ adds what every method shares:
 
 from __future__ import annotations
 
+import inspect
 from abc import abstractmethod
 
 import numpy as np
 
 from ..errors import SceneError, SolverError
-from ..forces import PROJECTED_MODES
 from ._base import Integrator, StepStats
-from ._stage import (FORCING_RULES, STAGE_SOLVERS, StageForcing, StageOptions, StageSolver, backtrack, check_count,
+from ._options import LinearSolveOptions
+from ._stage import (FORCING_RULES, STAGE_SOLVERS, NewtonOptions, StageForcing, StageSolver, backtrack, check_count,
                      forcing_term, record_linear_solve, report_stage)
 
 __all__ = ["ENERGY_GAIN", "FORCING_RULES", "STAGE_SOLVERS", "ImplicitIntegrator", "StageForcing", "backtrack",
@@ -42,70 +43,56 @@ ENERGY_GAIN = 1e-6
 class ImplicitIntegrator(Integrator):
     """Base of the implicit integrators.
 
+    The options of the stages and of the linear solves are two frozen groups, each field declared once with its
+    default: :class:`~springsim.integrators._stage.NewtonOptions` and
+    :class:`~springsim.integrators._options.LinearSolveOptions`. They are given as groups (``newton=``,
+    ``linear=``) or field by field as keywords (``jacobian="spd"``, ``solver="cg"``; a keyword may repeat a
+    group's field only with the same value); the signature lists every keyword, derived from the declarations.
+
     Parameters
     ----------
     model : Model
+        The model to integrate.
     system : System, optional
-        The backend (default: a :class:`~springsim.system.SerialSystem` with ``solver``, ``solver_options``,
+        The backend (default: a :class:`~springsim.system.SerialSystem` with the linear solver, ``solver_options``,
         ``terms`` and ``force_kernels``).
-    solver : str or LinearSolver
-        Linear solver name (see :data:`springsim.linsolve.LINEAR_SOLVERS`) or instance; default ``"auto"``
-        (``direct`` up to 4,000 DOFs, AMG-preconditioned Krylov above). Serial systems only.
+    newton : NewtonOptions, optional
+        How stages are solved: ``stage_solver``, ``jacobian``, ``force_rtol``, ``force_atol``, ``newton_tol``,
+        ``newton_maxiter``, ``residual_rtol``, ``forcing``, ``forcing_max``, ``line_search``, ``min_step``,
+        ``escalate_jacobian``, ``escalate_after`` (each documented, with its default or default rule, by
+        :class:`~springsim.integrators._stage.NewtonOptions`); also accepted as keywords.
+    linear : LinearSolveOptions, optional
+        The linear solver (keyword ``solver``: a name of :data:`springsim.linsolve.LINEAR_SOLVERS` or a
+        :class:`~springsim.linsolve.LinearSolver` instance, default ``"auto"``: ``direct`` up to 4,000 DOFs,
+        AMG-preconditioned Krylov above) and ``linear_rtol``, its relative tolerance; also accepted as keywords.
+        Serial systems only.
     solver_options : dict, optional
-        Passed to the linear solver's constructor (e.g. ``{"rtol": 1e-6}``). Serial systems only.
-    stage_solver : {"minimize", "residual", "pa2"} or None
-        How stages are solved (:mod:`springsim.integrators._stage`): ``"minimize"`` (the default where every
-        force term is conservative or dissipative and the method's stage is a minimisation) minimises the
-        incremental potential with projected Newton and a line search on it, stopping on the gradient;
-        ``"residual"`` is Newton with a line search on the residual; ``"pa2"`` the seed's rule exactly. When it is
-        not given, a ``jacobian`` that is not a projected mode (``exact``, ``symmetric``) selects ``"residual"``.
-    jacobian : {"exact", "symmetric", "spd", "mixed"} or None
-        Jacobian mode of Newton's matrix (:data:`springsim.forces.JACOBIAN_MODES`). ``"minimize"`` needs a
-        projected Hessian and defaults to ``"mixed"`` (``"spd"`` is the other); ``"pa2"`` and ``"residual"``
-        default to ``spd`` for solvers that need SPD matrices at this size
-        (:meth:`~springsim.system.System.default_jacobian`), else ``exact`` (PA2's).
-    force_rtol, force_atol : float
-        Stopping rule of ``"minimize"``: ``|grad E|_2 <= force_atol + force_rtol f_ref`` [N], with ``f_ref`` the
-        forces the stage balances at the iterate (inertia, applied force, and the weight as a floor; default
-        ``1e-5`` and ``0``).
-    newton_tol : float
-        Update tolerance of ``"residual"`` and ``"pa2"``: a stage may stop when ``|dv|_2 < newton_tol`` [m/s]
-        (PA2: 1e-5).
-    newton_maxiter : int or None
-        Iteration limit of a stage; default 5 with ``"pa2"`` (PA2), 50 with ``"minimize"``, and the class's
-        ``default_newton_maxiter`` with ``"residual"`` (5 for implicit Euler, 50 for the others).
-    residual_rtol : float
-        Residual tolerance of ``"residual"`` (:mod:`~springsim.integrators._stage`), default 1e-3.
+        Passed to the linear solver's constructor (e.g. ``{"maxiter": 50}``; ``{"rtol": ...}`` is
+        ``linear_rtol``). Serial systems only.
     on_nonconvergence : {"warn", "raise", "ignore"}
         What happens to a step that is not ``ok`` after its retakes: ``"warn"``: the drivers warn once per run;
         ``"raise"``: :class:`~springsim.errors.SolverError` at once; ``"ignore"``: recorded in
         :class:`StepStats` only.
-    line_search : bool
-        Backtrack the update of ``"residual"`` on ``|R|`` (``"minimize"`` always searches on ``E``, ``"pa2"``
-        never searches).
-    min_step : float or None
-        Smallest line-search step (default ``1/64`` for ``"residual"``, ``2**-20`` for ``"minimize"``).
-    escalate_jacobian : bool
-        ``"residual"`` with the ``spd`` or ``symmetric`` Jacobian: when Newton reaches its limit, continue the
-        stage from its last iterate with the ``exact`` Jacobian before reporting non-convergence (counted in
-        ``StepStats.extra["jacobian_escalations"]``).
-    escalate_after : int or None
-        Iterations with the projected Jacobian before escalating (default: the Newton limit).
-    forcing : {"fixed", "eisenstat-walker"}
-        Relative tolerance of the linear solves of stages run to convergence: the solver's ``rtol``
-        (``"fixed"``), or Eisenstat-Walker forcing terms.
-    forcing_max : float
-        Largest (and first) Eisenstat-Walker forcing term (default 0.1).
     retake_halvings : int
         A step that fails is retaken in up to ``2**retake_halvings`` substeps (module docstring; 0: never).
     filter_estimates : bool or None
         Pass the local error estimate through Shampine's stiff filter (:meth:`filter_estimate`; one extra
-        linear solve per step); default the class's ``default_filter_estimates``. Only integrators with such an
-        estimate use it.
+        linear solve per step); default the class's ``default_filter_estimates``. Only integrators whose
+        estimate comes from a difference formula use it.
     terms : list of ForceTerm, optional
         Force terms (default: those the model uses); only without ``system``.
     force_kernels : {"auto", "numba", "numpy"}
         Compiled force passes where numba is installed, or the pure numpy path; only without ``system``.
+    **options
+        The fields of ``newton`` and ``linear`` as keywords (above).
+
+    Raises
+    ------
+    SceneError
+        For an option its declaration refuses, naming the keyword; ``linear_rtol`` given twice with different
+        values (also as ``solver_options["rtol"]``).
+    TypeError
+        For an unknown keyword, or linear solver options together with a ``system``.
     """
 
     implicit = True
@@ -119,56 +106,69 @@ class ImplicitIntegrator(Integrator):
     #: Whether the method solves its stages to convergence (False: a fixed number of plain Newton iterations)
     converges: bool = True
 
-    def __init__(self, model, *, system=None, solver="auto", jacobian: str | None = None,
-                 stage_solver: str | None = None, newton_tol: float = 1e-5, newton_maxiter: int | None = None,
-                 residual_rtol: float = 1e-3, force_rtol: float = 1e-5, force_atol: float = 0.0,
-                 on_nonconvergence: str = "warn", solver_options: dict | None = None, line_search: bool = True,
-                 min_step: float | None = None, escalate_jacobian: bool = True, escalate_after: int | None = None,
-                 forcing: str = "fixed", forcing_max: float = 0.1, retake_halvings: int = 3,
-                 filter_estimates: bool | None = None, terms=None, force_kernels: str = "auto"):
-        serial = {} if system is not None else dict(solver=solver, solver_options=solver_options)
-        if system is not None and (solver not in (None, "auto") or solver_options):
-            raise TypeError("solver and solver_options belong to the system when a system is given")
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        cls.unused_options = cls.derived_unused_options()
+
+    @classmethod
+    def derived_unused_options(cls) -> frozenset:
+        """The keyword options this class accepts but never reads, derived from what it declares it reads.
+
+        The Newton options no stage rule the method admits reads (:meth:`NewtonOptions.read_by
+        <springsim.integrators._stage.NewtonOptions.read_by>` over :attr:`stage_solvers`, or ``"plain"`` for a
+        method that does not iterate to convergence), and ``filter_estimates`` unless the method has a free local
+        error estimate to filter (:attr:`has_error_estimate` without :attr:`error_estimate_costs`). It becomes
+        the class's ``unused_options``.
+
+        Returns
+        -------
+        frozenset of str
+        """
+        rules = cls.stage_solvers if cls.converges else ("plain",)
+        read = frozenset().union(*(NewtonOptions.read_by(rule) for rule in rules))
+        unused = set(NewtonOptions.declarations()) - read
+        if not (cls.has_error_estimate and not cls.error_estimate_costs):
+            unused.add("filter_estimates")
+        return frozenset(unused)
+
+    def __init__(self, model, *, system=None, newton: NewtonOptions | None = None,
+                 linear: LinearSolveOptions | None = None, solver_options: dict | None = None,
+                 on_nonconvergence: str = "warn", retake_halvings: int = 3, filter_estimates: bool | None = None,
+                 terms=None, force_kernels: str = "auto", **options):
+        solver = options.get("solver")
+        instance = solver is not None and not isinstance(solver, str)  # a LinearSolver instance: no name to check
+        if instance:
+            options = {k: v for k, v in options.items() if k != "solver"}
+        newton, rest = NewtonOptions.from_keywords(options, newton)
+        linear, rest = LinearSolveOptions.from_keywords(rest, linear)
+        if rest:
+            raise TypeError(f"{type(self).__name__}() got an unexpected keyword argument {next(iter(rest))!r}")
+        solver_options = _with_linear_rtol(solver_options, linear.linear_rtol)
+        if system is not None:
+            if instance or linear.linear_solver not in (None, "auto") or solver_options:
+                raise TypeError("solver and solver_options belong to the system when a system is given")
+            serial = {}
+        else:
+            serial = dict(solver=solver if instance else (linear.linear_solver or LinearSolveOptions.default(
+                "linear_solver")), solver_options=solver_options)
         super().__init__(model, system=system, terms=terms, force_kernels=force_kernels, **serial)
         if on_nonconvergence not in ("warn", "raise", "ignore"):
             raise ValueError(f"on_nonconvergence must be warn, raise or ignore, got {on_nonconvergence!r}")
-        potential = all(t.conservative or t.dissipative for t in self.terms)
-        if stage_solver is None:
-            stage_solver = self.stage_solvers[0]
-            # a minimisation needs forces with a potential and a projected Hessian: a Jacobian mode that is not
-            # one asks for Newton on the residual
-            if stage_solver == "minimize" and (not potential or jacobian not in (None, *PROJECTED_MODES)):
-                stage_solver = "residual"
-        elif stage_solver not in STAGE_SOLVERS:
-            raise SceneError("stage_solver", f"must be one of {', '.join(STAGE_SOLVERS)}, got {stage_solver!r:.60}")
-        elif stage_solver not in self.stage_solvers:
-            raise SceneError("stage_solver", f"{self.name} stages are solved with "
-                                             f"{' or '.join(self.stage_solvers)}, got {stage_solver!r:.60}")
-        elif stage_solver == "minimize" and not potential:
-            bad = [t.name for t in self.terms if not (t.conservative or t.dissipative)]
-            raise SceneError("stage_solver", f"minimize needs forces with a potential; {', '.join(bad)} has none")
-        if jacobian is None:
-            jacobian = "mixed" if stage_solver == "minimize" else self.system.default_jacobian()
-        if newton_maxiter is None:
-            newton_maxiter = {"minimize": 50, "pa2": 5}.get(stage_solver, self.default_newton_maxiter)
-        if min_step is None:
-            min_step = 2.0 ** -20 if stage_solver == "minimize" else 1.0 / 64
         check_count("retake_halvings", retake_halvings + 1)
         self.retake_halvings = int(retake_halvings)
         self.on_nonconvergence = on_nonconvergence
-        self.options = StageOptions(stage_solver=stage_solver, jacobian=jacobian, newton_maxiter=newton_maxiter,
-                                    newton_tol=float(newton_tol), residual_rtol=float(residual_rtol),
-                                    force_rtol=float(force_rtol), force_atol=float(force_atol),
-                                    line_search=bool(line_search), min_step=float(min_step),
-                                    escalate_jacobian=bool(escalate_jacobian), escalate_after=escalate_after,
-                                    forcing=forcing, forcing_max=float(forcing_max))
+        #: The linear solve options as given (:class:`~springsim.integrators._options.LinearSolveOptions`).
+        self.linear_options = linear
+        #: The stage options, resolved for this integrator (:meth:`NewtonOptions.resolve
+        #: <springsim.integrators._stage.NewtonOptions.resolve>`).
+        self.options = newton.resolve(self)
         self.stage = StageSolver(self.system, self.options)
         self.filter_estimates = self.has_error_estimate and bool(
             self.default_filter_estimates if filter_estimates is None else filter_estimates)
         if self.filter_estimates:
             self.estimating = False  # a filtered estimate costs a solve per step: only while estimating (adaptive)
         self._mass = self.system.particle_mass[:, None]
-        self._energy_guarded = potential
+        self._energy_guarded = all(t.conservative or t.dissipative for t in self.terms)
         self._energy_ceiling, self._last_output = None, None
         g = float(np.linalg.norm(model.gravity_vector))
         self._weight_scale = self.system.sum(float(np.sum(self.system.free_rows(self.system.particle_mass)))) * g
@@ -176,16 +176,16 @@ class ImplicitIntegrator(Integrator):
         self.retake = True
         self._recent_acceleration = None  # of the last (sub)step taken, for :meth:`predict`
 
-    #: Options each stage rule leaves unused (:func:`~springsim.integrators.make_integrator` warns about them)
-    RULE_UNUSED = {"minimize": frozenset({"newton_tol", "residual_rtol", "line_search", "escalate_jacobian",
-                                          "escalate_after"}),
-                   "residual": frozenset({"force_rtol", "force_atol"}),
-                   "pa2": frozenset({"force_rtol", "force_atol", "residual_rtol", "line_search", "min_step",
-                                     "escalate_jacobian", "escalate_after"})}
-
     def ignored_options(self) -> frozenset:
-        """The keyword options this integrator accepts but, with its stage rule, does not use."""
-        return self.RULE_UNUSED[self.stage_solver]
+        """The Newton options this integrator accepts but, with its stage rule, does not read.
+
+        Returns
+        -------
+        frozenset of str
+            Derived from the declarations (:meth:`NewtonOptions.read_by
+            <springsim.integrators._stage.NewtonOptions.read_by>`).
+        """
+        return frozenset(NewtonOptions.declarations()) - NewtonOptions.read_by(self.stage_solver)
 
     # the options as attributes (read-only views of :attr:`options`)
     stage_solver = property(lambda self: self.options.stage_solver)
@@ -418,3 +418,47 @@ class ImplicitIntegrator(Integrator):
         sysm.scatter_add(x_q, e_q + c * res.x)
         sysm.scatter_add(x_v, res.x)
         return x_q, x_v
+
+
+def _with_linear_rtol(solver_options: dict | None, rtol: float | None) -> dict | None:
+    """``solver_options`` with ``linear_rtol`` as its ``"rtol"`` (unchanged when ``rtol`` is None).
+
+    Parameters
+    ----------
+    solver_options : dict or None
+        The linear solver's constructor options.
+    rtol : float or None
+        ``linear_rtol``.
+
+    Returns
+    -------
+    dict or None
+
+    Raises
+    ------
+    SceneError
+        Naming ``linear_rtol`` when ``solver_options`` holds another ``"rtol"``.
+    """
+    if rtol is None:
+        return solver_options
+    solver_options = dict(solver_options or {})
+    if "rtol" in solver_options and solver_options["rtol"] != rtol:
+        raise SceneError("linear_rtol", f"given twice: linear_rtol={rtol!r:.60} and solver_options['rtol']="
+                                        f"{solver_options['rtol']!r:.60}")
+    solver_options["rtol"] = rtol
+    return solver_options
+
+
+def _signature() -> inspect.Signature:
+    """:class:`ImplicitIntegrator`'s signature with ``**options`` spelt out: the keywords of the option groups,
+    from their declarations (so :func:`inspect.signature` and ``help`` list every option)."""
+    sig = inspect.signature(ImplicitIntegrator.__init__)
+    params = [p for p in sig.parameters.values() if p.kind is not p.VAR_KEYWORD]
+    for group in (LinearSolveOptions, NewtonOptions):
+        for kw, name in group.keywords().items():
+            params.append(inspect.Parameter(kw, inspect.Parameter.KEYWORD_ONLY, default=None,
+                                            annotation=group.declarations()[name].type))
+    return sig.replace(parameters=params)
+
+
+ImplicitIntegrator.__init__.__signature__ = _signature()

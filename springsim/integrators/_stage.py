@@ -117,8 +117,9 @@ import numpy as np
 from ..errors import SceneError, SolverError
 from ..forces import JACOBIAN_MODES, PROJECTED_MODES
 from ._base import PRECISION_LOSS_LIMIT, StepStats
+from ._options import ByRule, DefaultRule, OptionGroup, option
 
-__all__ = ["STAGE_SOLVERS", "FORCING_RULES", "StageOptions", "StageSolver", "StageForcing", "forcing_term",
+__all__ = ["STAGE_SOLVERS", "FORCING_RULES", "NewtonOptions", "StageOptions", "StageSolver", "StageForcing", "forcing_term",
            "backtrack", "record_linear_solve", "report_stage", "check_count"]
 
 #: Rules of the stage solver (module docstring).
@@ -274,51 +275,238 @@ def check_count(name: str, value) -> None:
         raise SceneError(name, f"must be an integer >= 1, got {value!r:.60}")
 
 
+def _default_stage_solver(integrator, given, resolved) -> str:
+    """the method's first stage rule (minimize; energy_momentum: residual), residual where a force has no potential
+    or the jacobian given is not a projected mode
+
+    Parameters
+    ----------
+    integrator : ImplicitIntegrator
+        The integrator being built (its ``stage_solvers`` and force terms).
+    given : NewtonOptions
+        The options given.
+    resolved : dict
+        The fields resolved so far.
+
+    Returns
+    -------
+    str
+        A stage rule.
+    """
+    rule = integrator.stage_solvers[0]
+    # a minimisation needs forces with a potential and a projected Hessian: a Jacobian mode that is not one asks
+    # for Newton on the residual
+    if rule == "minimize" and (not _has_potential(integrator) or given.jacobian not in (None, *PROJECTED_MODES)):
+        rule = "residual"
+    return rule
+
+
+def _default_jacobian(integrator, given, resolved) -> str:
+    """mixed for minimize stages, else exact where the solver takes any matrix and spd where it needs SPD matrices
+
+    Parameters
+    ----------
+    integrator : ImplicitIntegrator
+        The integrator being built (its system's :meth:`~springsim.system.System.default_jacobian`).
+    given : NewtonOptions
+        The options given.
+    resolved : dict
+        The fields resolved so far (``stage_solver``).
+
+    Returns
+    -------
+    str
+        A Jacobian mode.
+    """
+    return "mixed" if resolved["stage_solver"] == "minimize" else integrator.system.default_jacobian()
+
+
+def _has_potential(integrator) -> bool:
+    """Whether every force term of ``integrator`` is conservative or dissipative (a stage is then a minimisation)."""
+    return all(t.conservative or t.dissipative for t in integrator.terms)
+
+
+#: Every stage rule, and ``"plain"``: a fixed number of plain Newton iterations (``converge=False``), linearized
+#: implicit Euler's step.
+_ALL = (*STAGE_SOLVERS, "plain")
+_CONVERGED = STAGE_SOLVERS
+
+
 @dataclass(frozen=True)
-class StageOptions:
-    """The options of a stage solver, validated (:class:`~springsim.integrators.ImplicitIntegrator` documents
-    each)."""
+class NewtonOptions(OptionGroup):
+    """How the stages of implicit integrators are solved: the stage rule, its Jacobian, stopping rule and limits.
 
-    stage_solver: str
-    jacobian: str
-    newton_maxiter: int
-    newton_tol: float
-    residual_rtol: float
-    force_rtol: float
-    force_atol: float
-    line_search: bool
-    min_step: float
-    escalate_jacobian: bool
-    escalate_after: int | None
-    forcing: str
-    forcing_max: float
+    Each field is declared once (:func:`~springsim.integrators._options.option`: type, bounds, default, YAML key,
+    flag, help, and the stage rules that read it); ``None`` stands for the declared default, which may depend on
+    the stage rule and the integrator (:meth:`resolve`). The group is frozen and checked on construction; the
+    stage solver (:class:`StageSolver`) takes a resolved one (:meth:`resolve`), so nothing is checked twice.
 
-    def __post_init__(self):
-        if self.stage_solver not in STAGE_SOLVERS:
-            raise SceneError("stage_solver", f"must be one of {', '.join(STAGE_SOLVERS)}, got "
-                                             f"{self.stage_solver!r:.60}")
-        if self.forcing not in FORCING_RULES:
-            raise SceneError("forcing", f"must be one of {', '.join(FORCING_RULES)}, got {self.forcing!r:.60}")
-        if not 0.0 < self.forcing_max < 1.0:
-            raise SceneError("forcing_max", f"must be in (0, 1), got {self.forcing_max!r:.60}")
-        if self.jacobian not in JACOBIAN_MODES:
-            raise SceneError("jacobian", f"must be one of {', '.join(JACOBIAN_MODES)}, got {self.jacobian!r}")
-        if self.stage_solver == "minimize" and self.jacobian not in PROJECTED_MODES:
+    Parameters
+    ----------
+    stage_solver : {"minimize", "residual", "pa2"}, optional
+        How stages are solved (module docstring). Default: the integrator's first rule (``minimize``;
+        ``residual`` for the energy-momentum method), ``residual`` where a force term has no potential or
+        ``jacobian`` is not a projected mode.
+    jacobian : {"exact", "symmetric", "spd", "mixed"}, optional
+        Jacobian mode of Newton's matrix (:data:`springsim.forces.JACOBIAN_MODES`); ``minimize`` needs a projected
+        one. Default ``mixed`` for ``minimize``, else ``spd`` for solvers that need SPD matrices at this size
+        (:meth:`~springsim.system.System.default_jacobian`) and ``exact`` otherwise.
+    force_rtol, force_atol : float, optional
+        Stopping rule of ``minimize``: ``|grad E|_2 <= force_atol + force_rtol f_ref`` [N] (module docstring;
+        default ``1e-5`` and ``0``).
+    newton_tol : float, optional
+        Update tolerance of ``residual`` and ``pa2``: a stage may stop when ``|dv|_2 < newton_tol`` [m/s]
+        (default 1e-5, PA2's).
+    newton_maxiter : int, optional
+        Iteration limit of a stage: 50 with ``minimize``, 5 with ``pa2`` (PA2), and the integrator's
+        ``default_newton_maxiter`` with ``residual`` (5 for implicit Euler, 50 for the others).
+    residual_rtol : float, optional
+        Residual tolerance of ``residual`` (module docstring), default 1e-3.
+    forcing : {"fixed", "eisenstat-walker"}, optional
+        Relative tolerance of the linear solves of stages run to convergence: the solver's ``rtol`` (``fixed``,
+        the default), or Eisenstat-Walker forcing terms (module docstring, "Forcing").
+    forcing_max : float, optional
+        Largest (and first) Eisenstat-Walker forcing term, in (0, 1); default 0.1.
+    line_search : bool, optional
+        Backtrack the update of ``residual`` on ``|R|`` (default True; ``minimize`` always searches on ``E``,
+        ``pa2`` never searches).
+    min_step : float, optional
+        Smallest line-search step, in (0, 1] (default ``2**-20`` for ``minimize``, ``1/64`` otherwise).
+    escalate_jacobian : bool, optional
+        ``residual`` with the ``spd`` or ``symmetric`` Jacobian: when Newton reaches its limit, continue the
+        stage from its last iterate with the ``exact`` Jacobian before reporting non-convergence (default True).
+    escalate_after : int, optional
+        Iterations with the projected Jacobian before escalating (default: the Newton limit).
+
+    Raises
+    ------
+    SceneError
+        On construction, naming the field of a value its declaration refuses, or ``jacobian`` for a mode that is
+        not projected with ``minimize`` stages.
+    """
+
+    stage_solver: str | None = option(
+        DefaultRule(_default_stage_solver), kind="name", cli="--stage-solver", metavar="RULE", choices=STAGE_SOLVERS,
+        what="stage solver", rules=_ALL,
+        help="how implicit stages are solved: minimize (the incremental potential, projected Newton and a line "
+             "search on it), residual (Newton with a line search on the residual) or pa2 (the course's rule)")
+    jacobian: str | None = option(DefaultRule(_default_jacobian), kind="name", cli="--jacobian", metavar="MODE",
+                                  choices=JACOBIAN_MODES, what="jacobian mode", rules=_ALL, help="Jacobian mode")
+    force_rtol: float | None = option(1e-5, kind="float", cli="--force-rtol", metavar="R", lo=0.0, strict=True,
+                                      rules=("minimize",),
+                                      help="minimize stages: stop when the force imbalance |grad E| is below this "
+                                           "fraction of the stage's force scale")
+    force_atol: float | None = option(0.0, kind="float", cli="--force-atol", metavar="F", lo=0.0,
+                                      rules=("minimize",),
+                                      help="minimize stages: absolute force imbalance tolerance [N]")
+    newton_tol: float | None = option(1e-5, kind="float", cli="--newton-tol", metavar="TOL", lo=0.0, strict=True,
+                                      rules=("residual", "pa2"),
+                                      help="residual and pa2 stages: Newton update tolerance on |dv| [m/s]")
+    newton_maxiter: int | None = option(ByRule({"minimize": 50, "pa2": 5, "residual": None},
+                                               attr="default_newton_maxiter"),
+                                        kind="int", cli="--newton-maxiter", metavar="N", lo=1, hi=10**6,
+                                        rules=_CONVERGED, help="Newton iteration limit of a stage")
+    residual_rtol: float | None = option(1e-3, kind="float", cli="--residual-rtol", metavar="R", lo=0.0,
+                                         strict=True, rules=("residual",),
+                                         help="Newton residual tolerance, relative to the balanced terms")
+    forcing: str | None = option("fixed", kind="name", cli="--forcing", metavar="RULE", choices=FORCING_RULES,
+                                 what="forcing rule", rules=_CONVERGED,
+                                 help="relative tolerance of Newton's linear solves: fixed (the solver's rtol) or "
+                                      "eisenstat-walker (loose far from the root, tightening as Newton converges)")
+    forcing_max: float | None = option(0.1, kind="float", yaml=False, lo=0.0, strict=True, hi=1.0, hi_strict=True,
+                                       rules=_CONVERGED, help="largest (and first) Eisenstat-Walker forcing term")
+    line_search: bool | None = option(True, kind="bool", yaml=False, rules=("residual",),
+                                      help="backtrack the update of residual stages on |R|")
+    min_step: float | None = option(ByRule({"minimize": 2.0 ** -20, "residual": 1.0 / 64, "pa2": 1.0 / 64}),
+                                    kind="float", yaml=False, lo=0.0, strict=True, hi=1.0,
+                                    rules=("minimize", "residual"), help="smallest line-search step")
+    escalate_jacobian: bool | None = option(True, kind="bool", yaml=False, rules=("residual",),
+                                            help="residual stages with a projected Jacobian: finish a stage that "
+                                                 "reaches the Newton limit with the exact one")
+    escalate_after: int | None = option(None, kind="int", yaml=False, lo=1, rules=("residual",),
+                                        default_text="the Newton limit",
+                                        help="iterations with the projected Jacobian before escalating")
+
+    def check_combination(self) -> None:
+        """``minimize`` stages need a projected Jacobian mode.
+
+        Raises
+        ------
+        SceneError
+            Naming ``jacobian``.
+        """
+        if self.stage_solver == "minimize" and self.jacobian is not None and self.jacobian not in PROJECTED_MODES:
             raise SceneError("jacobian", f"the minimize stage solver needs a projected Hessian "
                                          f"({' or '.join(PROJECTED_MODES)}), got {self.jacobian!r}; choose "
                                          f"stage_solver residual or pa2 for another mode")
-        for name in ("newton_tol", "residual_rtol", "force_rtol"):
-            if not getattr(self, name) > 0:
-                raise SceneError(name, f"must be > 0, got {getattr(self, name)}")
-        if not self.force_atol >= 0:
-            raise SceneError("force_atol", f"must be >= 0, got {self.force_atol}")
-        if not 0.0 < self.min_step <= 1.0:
-            raise SceneError("min_step", f"must be in (0, 1], got {self.min_step}")
-        check_count("newton_maxiter", self.newton_maxiter)
-        object.__setattr__(self, "newton_maxiter", int(self.newton_maxiter))
-        if self.escalate_after is not None:
-            check_count("escalate_after", self.escalate_after)
-            object.__setattr__(self, "escalate_after", int(self.escalate_after))
+
+    @classmethod
+    def read_by(cls, rule: str) -> frozenset:
+        """The fields stage rule ``rule`` reads, from their declarations (the others it ignores).
+
+        Parameters
+        ----------
+        rule : {"minimize", "residual", "pa2", "plain"}
+            A stage rule, or ``"plain"``: plain Newton iterations (linearized implicit Euler).
+
+        Returns
+        -------
+        frozenset of str
+        """
+        return frozenset(name for name, f in cls.declarations().items() if rule in f.metadata["rules"])
+
+    @property
+    def resolved(self) -> bool:
+        """Whether every field with a default holds a value (:meth:`resolve`'s result)."""
+        return all(getattr(self, name) is not None for name, f in self.declarations().items()
+                   if f.metadata["default"] is not None)
+
+    def resolve(self, integrator) -> "NewtonOptions":
+        """These options with every default filled in for ``integrator``: the group :class:`StageSolver` takes.
+
+        The stage rule is checked against the ones the method admits (``integrator.stage_solvers``) and its
+        forces; then each field not given takes its declared default, in declaration order: a value, a value by
+        stage rule (:class:`~springsim.integrators._options.ByRule`), or a rule function
+        (:class:`~springsim.integrators._options.DefaultRule`).
+
+        Parameters
+        ----------
+        integrator : ImplicitIntegrator
+            The integrator being built (its class, ``stage_solvers``, force terms and system).
+
+        Returns
+        -------
+        NewtonOptions
+            Resolved (:attr:`resolved`).
+
+        Raises
+        ------
+        SceneError
+            Naming ``stage_solver`` for a rule the method or its forces do not admit.
+        """
+        rule = self.stage_solver
+        if rule is not None and rule not in integrator.stage_solvers:
+            raise SceneError("stage_solver", f"{integrator.name} stages are solved with "
+                                             f"{' or '.join(integrator.stage_solvers)}, got {rule!r:.60}")
+        if rule == "minimize" and not _has_potential(integrator):
+            bad = [t.name for t in integrator.terms if not (t.conservative or t.dissipative)]
+            raise SceneError("stage_solver", f"minimize needs forces with a potential; {', '.join(bad)} has none")
+        values: dict = {}
+        for name, f in self.declarations().items():
+            value, default = getattr(self, name), f.metadata["default"]
+            if value is None:
+                if isinstance(default, DefaultRule):
+                    value = default.fn(integrator, self, values)
+                elif isinstance(default, ByRule):
+                    value = default.value(values["stage_solver"], type(integrator))
+                else:
+                    value = default
+            values[name] = value
+        return NewtonOptions(**values)
+
+
+#: The former name of :class:`NewtonOptions`.
+StageOptions = NewtonOptions
 
 
 class StageSolver:
@@ -327,13 +515,16 @@ class StageSolver:
     Parameters
     ----------
     system : System
-    options : StageOptions
+    options : NewtonOptions
+        Resolved (:meth:`NewtonOptions.resolve`).
     stage_forces, stage_matrix : callable, optional
         Replace the system's forces ``F(q, v)`` and stage matrix (the energy-momentum method's discrete
         gradient); only the ``residual`` and ``pa2`` rules take them.
     """
 
-    def __init__(self, system, options: StageOptions):
+    def __init__(self, system, options: NewtonOptions):
+        if not isinstance(options, NewtonOptions) or not options.resolved:
+            raise TypeError("StageSolver takes resolved NewtonOptions (NewtonOptions.resolve)")
         self.system = system
         self.options = options
         mass = system.particle_mass
@@ -670,7 +861,9 @@ class StageSolver:
             if not final_residual and it == maxiter - 1:  # nothing reads the last residual: not computed
                 alpha, (v, q, R, rnorm, ratio) = 1.0, trial(1.0, judged=False)
             else:
-                alpha, (v, q, R, rnorm, ratio) = backtrack(trial, rnorm, enabled=search, min_step=o.min_step)
+                # min_step read only where the rule searches (NewtonOptions declares which rules read it)
+                alpha, (v, q, R, rnorm, ratio) = backtrack(trial, rnorm, enabled=search,
+                                                           min_step=o.min_step if search else 1.0)
             stats.extra["min_line_search_step"] = min(alpha, stats.extra.get("min_line_search_step", 1.0))
             if not np.isfinite(step):
                 break

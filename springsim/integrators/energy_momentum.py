@@ -94,7 +94,6 @@ class IntegratorEnergyMomentum(ImplicitIntegrator):
     order = 2
     has_error_estimate = True
     error_estimate_costs = True
-    unused_options = frozenset({"filter_estimates", "force_rtol", "force_atol"})  # no filter, no minimisation
     default_filter_estimates = False
     #: The discrete gradient is not the gradient of a potential: Newton on the residual (or the seed's rule)
     stage_solvers = ("residual", "pa2")

@@ -20,7 +20,6 @@ class IntegratorImplicitEuler(ImplicitIntegrator):
     """Implicit Euler; options as :class:`~springsim.integrators.ImplicitIntegrator`."""
 
     name = "implicit_euler"
-    unused_options = frozenset({"filter_estimates"})  # no error estimate
 
     def advance(self, q, v, h, stats):
         """One implicit Euler step of size ``h`` from ``(q, v)``: one stage with ``c = h`` (module docstring).

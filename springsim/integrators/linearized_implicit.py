@@ -35,10 +35,6 @@ class IntegratorLinearizedImplicit(ImplicitIntegrator):
 
     name = "linearized_implicit"
     converges = False  # one plain Newton iteration
-    # one plain Newton iteration: no stopping rule, line search or escalation
-    unused_options = frozenset({"newton_tol", "newton_maxiter", "residual_rtol", "line_search", "min_step",
-                                "escalate_jacobian", "escalate_after", "forcing", "forcing_max", "filter_estimates",
-                                "force_rtol", "force_atol"})
 
     def blowup_hint(self) -> str:
         if self.jacobian != "spd":

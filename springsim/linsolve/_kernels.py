@@ -25,7 +25,7 @@ it selects, then the inner block index), so both paths give bitwise the same pro
 differs only in keeping blocks that cancel to zero, and in sorted rows. A hierarchy built either way
 is the same to round-off.
 
-``kernels="scipy"`` (or numba absent) keeps scipy's products: that is the pure path, and the tests
+``kernels="numpy"`` (or numba absent) keeps scipy's products: that is the pure path, and the tests
 check the compiled one against it.
 """
 
@@ -40,8 +40,9 @@ __all__ = ["KERNELS", "BsrOperator", "BsrProduct", "CompiledVCycle", "block_diag
            "block_gauss_seidel_backward", "block_gauss_seidel_forward", "bsr_block_diagonal", "bsr_matmat",
            "bsr_operator", "numba_available", "resolve_kernels", "smoothed_prolongator"]
 
-#: Accepted values of the ``kernels`` option.
-KERNELS = ("auto", "numba", "scipy")
+#: Accepted values of the ``kernels`` option: those of every ``kernels`` option (:mod:`springsim._runtime.accel`,
+#: which documents them; the former ``"scipy"`` is a deprecated alias of ``"numpy"``).
+KERNELS = _accel.KERNELS
 
 
 def numba_available() -> bool:
@@ -50,14 +51,15 @@ def numba_available() -> bool:
 
 
 def resolve_kernels(kernels: str) -> str:
-    """``"numba"`` or ``"scipy"`` for the option value ``kernels`` (``"auto"``: numba when installed).
+    """``"numba"`` or ``"numpy"`` for the option value ``kernels`` (``"auto"``: numba when installed;
+    ``"scipy"``, the former spelling of ``"numpy"``, with a :class:`DeprecationWarning`).
 
     Raises
     ------
     ValueError
         For a value not in :data:`KERNELS`, or ``"numba"`` without numba installed.
     """
-    return _accel.resolve(kernels, "scipy", KERNELS, available=lambda: numba_available())
+    return _accel.resolve(kernels, available=lambda: numba_available())
 
 
 def _numba():
@@ -131,13 +133,13 @@ class BsrProduct:
         return sp.bsr_matrix((data, self.indices, self.indptr), shape=self.shape, copy=False)
 
 
-def bsr_matmat(X: sp.bsr_matrix, Y: sp.bsr_matrix, kernels: str = "scipy",
+def bsr_matmat(X: sp.bsr_matrix, Y: sp.bsr_matrix, kernels: str = "numpy",
                plan: BsrProduct | None = None, symmetric: bool = False) -> tuple[sp.bsr_matrix, BsrProduct | None]:
     """``(X @ Y, plan)`` as BSR with blocks ``(X.blocksize[0], Y.blocksize[1])``.
 
     With ``kernels="numba"`` the product goes through ``plan`` when it matches the operands' patterns,
     else through a new :class:`BsrProduct` (returned for the next call; ``symmetric``, see there); with
-    ``"scipy"`` through scipy's product (``plan`` None).
+    ``"numpy"`` through scipy's product (``plan`` None).
     """
     if kernels == "numba":
         if plan is None or not plan.matches(X, Y) or plan.symmetric != symmetric:
@@ -157,10 +159,10 @@ def bsr_block_diagonal(A: sp.bsr_matrix) -> np.ndarray:
     return D
 
 
-def block_diagonal_inverse(A: sp.bsr_matrix, kernels: str = "scipy") -> tuple[np.ndarray, np.ndarray]:
+def block_diagonal_inverse(A: sp.bsr_matrix, kernels: str = "numpy") -> tuple[np.ndarray, np.ndarray]:
     """``(D, Dinv)``: the diagonal blocks of the square BSR matrix ``A`` (zero where absent), (nb, bs, bs),
     and their inverses. ``kernels="numba"``: one compiled pass (Gauss-Jordan with partial pivoting);
-    ``"scipy"``: :func:`bsr_block_diagonal` and ``numpy.linalg.inv`` (LAPACK).
+    ``"numpy"``: :func:`bsr_block_diagonal` and ``numpy.linalg.inv`` (LAPACK).
     Both raise ``numpy.linalg.LinAlgError`` for a singular block and agree to round-off otherwise."""
     if kernels == "numba":
         return _numba().block_diagonal_inverse(A.indptr, A.indices, np.ascontiguousarray(A.data))
@@ -169,12 +171,12 @@ def block_diagonal_inverse(A: sp.bsr_matrix, kernels: str = "scipy") -> tuple[np
 
 
 def smoothed_prolongator(AT: sp.bsr_matrix, T: sp.bsr_matrix, Dinv: np.ndarray, scale: float,
-                         kernels: str = "scipy") -> sp.bsr_matrix:
+                         kernels: str = "numpy") -> sp.bsr_matrix:
     """The Jacobi-smoothed prolongator ``P = T - scale D^-1 (A T)`` from ``AT = A T`` (BSR), the tentative
     prolongator ``T`` and ``Dinv`` (nb, R, R), the inverted diagonal blocks of ``A``.
 
     ``kernels="numba"``: one compiled pass that overwrites ``AT``'s values and returns ``P`` on its pattern
-    (which holds ``T``'s when ``A`` has all its diagonal blocks); ``"scipy"``: scaled blocks and scipy's
+    (which holds ``T``'s when ``A`` has all its diagonal blocks); ``"numpy"``: scaled blocks and scipy's
     sparse difference. The two agree to round-off.
     """
     if kernels == "numba":
@@ -188,12 +190,12 @@ def smoothed_prolongator(AT: sp.bsr_matrix, T: sp.bsr_matrix, Dinv: np.ndarray, 
 
 
 def block_gauss_seidel_forward(indptr: np.ndarray, indices: np.ndarray, data: np.ndarray, x: np.ndarray,
-                               b: np.ndarray, dinv: np.ndarray, kernels: str = "scipy") -> None:
+                               b: np.ndarray, dinv: np.ndarray, kernels: str = "numpy") -> None:
     """One forward block Gauss-Seidel sweep, ``x`` updated in place.
 
     ``(indptr, indices, data)`` the BSR arrays of a square matrix with ``R x R`` blocks (``data`` (nnzb, R, R),
     C-contiguous), ``dinv`` (nb, R, R) the inverses of its diagonal blocks. ``kernels="numba"``: the compiled
-    kernel (about twice as fast as pyamg's on 3x3 blocks, same sweep to round-off); ``"scipy"``: pyamg's.
+    kernel (about twice as fast as pyamg's on 3x3 blocks, same sweep to round-off); ``"numpy"``: pyamg's.
     """
     if kernels == "numba":
         _numba().block_gauss_seidel_forward(indptr, indices, data, x, b, dinv)
@@ -205,10 +207,10 @@ def block_gauss_seidel_forward(indptr: np.ndarray, indices: np.ndarray, data: np
 
 
 def block_gauss_seidel_backward(indptr: np.ndarray, indices: np.ndarray, data: np.ndarray, x: np.ndarray,
-                                b: np.ndarray, dinv: np.ndarray, kernels: str = "scipy") -> None:
+                                b: np.ndarray, dinv: np.ndarray, kernels: str = "numpy") -> None:
     """One backward block Gauss-Seidel sweep (block rows last to first), ``x`` updated in place; arguments as
     :func:`block_gauss_seidel_forward`. ``kernels="numba"``: the compiled kernel, walking the rows and each
-    row's blocks backwards (the same sweep as pyamg's to round-off); ``"scipy"``: pyamg's."""
+    row's blocks backwards (the same sweep as pyamg's to round-off); ``"numpy"``: pyamg's."""
     if kernels == "numba":
         _numba().block_gauss_seidel_backward(indptr, indices, data, x, b, dinv)
         return
@@ -245,8 +247,8 @@ class BsrOperator:
     __matmul__ = dot = matvec
 
 
-def bsr_operator(A: sp.bsr_matrix, kernels: str = "scipy"):
-    """``A`` itself (``kernels="scipy"``) or a :class:`BsrOperator` for it (``"numba"``, float64 BSR)."""
+def bsr_operator(A: sp.bsr_matrix, kernels: str = "numpy"):
+    """``A`` itself (``kernels="numpy"``) or a :class:`BsrOperator` for it (``"numba"``, float64 BSR)."""
     if kernels == "numba" and sp.issparse(A) and A.format == "bsr" and A.dtype == np.float64:
         return BsrOperator(A)
     return A

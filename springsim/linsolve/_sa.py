@@ -44,7 +44,7 @@ def _block_diagonal_operator(D: np.ndarray) -> sp.bsr_matrix:
 
 
 def lanczos_rho(A: sp.bsr_matrix, D: np.ndarray, Dinv: np.ndarray, steps: int = 12, seed: int = 0,
-                start: np.ndarray | None = None, return_vector: bool = False, kernels: str = "scipy"):
+                start: np.ndarray | None = None, return_vector: bool = False, kernels: str = "numpy"):
     """Largest eigenvalue of ``D^-1 A`` by ``steps`` Lanczos steps in the ``D`` inner product.
 
     ``A`` symmetric positive definite, ``D`` its block diagonal (SPD), ``Dinv`` the block
@@ -92,7 +92,7 @@ def lanczos_rho(A: sp.bsr_matrix, D: np.ndarray, Dinv: np.ndarray, steps: int = 
 def smoothed_aggregation_levels(A: sp.bsr_matrix, B: np.ndarray, *, theta: float = 0.1, omega: float = 4.0 / 3.0,
                                 max_coarse: int = 50, max_levels: int = 10, lanczos_steps: int = 12,
                                 aggregates: list | None = None, ritz: list | None = None,
-                                warm_lanczos_steps: int = 4, kernels: str = "scipy", products: list | None = None):
+                                warm_lanczos_steps: int = 4, kernels: str = "numpy", products: list | None = None):
     """The levels of a smoothed-aggregation hierarchy for the SPD BSR matrix ``A``.
 
     Parameters
@@ -117,7 +117,7 @@ def smoothed_aggregation_levels(A: sp.bsr_matrix, B: np.ndarray, *, theta: float
         The levels' ``ritz`` vectors of a previous call with a matrix of the same pattern: each
         level's estimate then starts from its vector and runs ``warm_lanczos_steps`` steps.
     warm_lanczos_steps : int
-    kernels : {"scipy", "numba"}
+    kernels : {"numpy", "numba"}
         How the setup's sparse products are computed: scipy's products, or
         :class:`~springsim.linsolve._kernels.BsrProduct` (pattern once, compiled numeric kernel).
     products : list of dict, optional
@@ -131,7 +131,7 @@ def smoothed_aggregation_levels(A: sp.bsr_matrix, B: np.ndarray, *, theta: float
         Every level's ``A`` but the last (the given ``A`` included) gets the attribute
         ``block_D_inv``, its inverted block diagonal, which pyamg's block smoothers then reuse;
         every level but the last the attributes ``ritz``, the top Ritz vector of ``D^-1 A``, and
-        ``products``, the level's product plans (None each with ``kernels="scipy"``).
+        ``products``, the level's product plans (None each with ``kernels="numpy"``).
     aggregates : list of csr_matrix
         The aggregation operator of every level but the last (pass back to reuse).
 

@@ -24,7 +24,9 @@ implicit system's 3x3 block structure:
   residuals, transfers) and the matrix-vector products of the Krylov method (``amg-cg``,
   ``amg-gmres``) and of the Lanczos estimate run, in kernels compiled for the block sizes
   (:mod:`springsim.linsolve._kernels`; the same hierarchy, cycle and products as the pure path to
-  round-off); ``kernels="scipy"`` keeps scipy's products and pyamg's cycle.
+  round-off); ``kernels="numpy"`` keeps scipy's products and pyamg's cycle (the values of ``kernels`` are
+  those of every ``kernels`` option, :mod:`springsim._runtime.accel`; ``"scipy"`` is a deprecated alias of
+  ``"numpy"``).
 * **coarsest level**: at most ``max_coarse`` block rows, solved by a dense pseudo-inverse (the
   coarse operator of a flat cloth is exactly singular in its rotation modes).
 * **reuse**: a hierarchy is kept for repeated solves with the same matrix and tried on the next
@@ -107,7 +109,7 @@ class BlockGaussSeidel:
     """One block Gauss-Seidel sweep on a BSR matrix, forward or backward, as a pyamg smoother.
 
     ``kernels="numba"``: the compiled kernels of :mod:`springsim.linsolve._kernels`, walking the
-    block rows forwards or backwards on the matrix's own arrays. ``kernels="scipy"``: pyamg's
+    block rows forwards or backwards on the matrix's own arrays. ``kernels="numpy"``: pyamg's
     kernel; its backward sweep then runs as a forward sweep on a copy of the matrix with its block
     rows and columns in reverse order (pyamg's backward walk runs at about half the speed of its
     forward one; the copy costs one pass over the matrix data per hierarchy build). Every variant
@@ -122,11 +124,11 @@ class BlockGaussSeidel:
         The level matrix, 3x3 blocks.
     sweep : {"forward", "backward"}
         Direction of the sweep.
-    kernels : {"scipy", "numba"}
+    kernels : {"numpy", "numba"}
         pyamg's kernel or the compiled one.
     """
 
-    def __init__(self, A, sweep: str = "forward", kernels: str = "scipy"):
+    def __init__(self, A, sweep: str = "forward", kernels: str = "numpy"):
         from pyamg.util.utils import get_block_diag
 
         if sweep not in ("forward", "backward"):
@@ -183,9 +185,10 @@ class AMGPreconditioner(Preconditioner):
     nearby : float
         Relative change of the matrix (Frobenius, sampled) up to which reuse is tried during a cooldown
         (0 turns it off).
-    kernels : {"auto", "numba", "scipy"}
+    kernels : {"auto", "numba", "numpy"}
         The setup's sparse products and the V-cycle: compiled kernels, the products with cached patterns
-        (``"numba"``; ``"auto"`` when numba is installed), or scipy's and pyamg's (module docstring).
+        (``"numba"``; ``"auto"`` when numba is installed), or scipy's and pyamg's (``"numpy"``; the former
+        ``"scipy"`` is a deprecated alias; module docstring, :mod:`springsim._runtime.accel`).
     sa_options : dict, optional
         Extra keywords for :func:`pyamg.smoothed_aggregation_solver` (then pyamg's setup is used).
     """

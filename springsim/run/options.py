@@ -1,16 +1,24 @@
-"""Run options, declared once: :class:`SolverConfig`.
+"""Run options, declared once: the option groups and :class:`SolverConfig`, which composes them.
 
 Every option a run takes (the YAML ``solver:`` block, the command-line flags of ``springsim run``,
-the keywords of :func:`springsim.integrators.make_integrator` and the drivers) is one field of
-:class:`SolverConfig`, declared with :func:`option`: its type and bounds, default, help text, YAML
-key, command-line flag and where it goes (the integrator, its linear solver, or the driver). The
-YAML parser (:meth:`SolverConfig.from_yaml`), the validation (:meth:`SolverConfig.validate`), the
-command-line flags (:meth:`SolverConfig.add_arguments`) and the keyword options
-(:meth:`SolverConfig.integrator_options`) are all derived from the declarations, so adding an
-option is one field here.
+the keywords of :func:`springsim.integrators.make_integrator` and the drivers) is one field of a frozen option
+group, declared with :func:`option`: its type and bounds, default (a value, or a rule where it depends on the
+stage rule or the integrator), help text, YAML key and command-line flag. The groups:
+
+* :class:`~springsim.integrators.NewtonOptions`: how implicit stages are solved (``stage_solver``, ``jacobian``,
+  ``force_rtol``, ``newton_tol``, ``newton_maxiter``, ...);
+* :class:`~springsim.integrators.LinearSolveOptions`: the linear solver and ``linear_rtol``;
+* :class:`TimeStepOptions`: the steps of the run (``timestep``, ``steps`` or ``duration``, the tolerances of
+  adaptive stepping and ``max_step``);
+
+and :class:`SolverConfig` composes them with the run-level fields (``type``, ``backend``, ``partitioner``,
+``petsc_options``). The YAML parser (:meth:`SolverConfig.from_yaml`), the command-line flags and their
+``--help`` defaults (:meth:`SolverConfig.add_arguments`), the keyword options
+(:meth:`SolverConfig.integrator_options`) and the options a run leaves unused (:meth:`SolverConfig.unused`) are
+all derived from the declarations, so adding an option is one field of a group.
 
 Errors: the Python API raises :class:`~springsim.errors.SceneError` (a ``ValueError``) whose path is
-the parameter (``jacobian: must be one of ...``); :class:`SolverConfig` reports the YAML field path
+the parameter (``jacobian: unknown jacobian mode ...``); :class:`SolverConfig` reports the YAML field path
 (``solver.jacobian``), and the command line its flag.
 """
 
@@ -18,11 +26,15 @@ from __future__ import annotations
 
 import importlib
 import math
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field, fields
 
-from ..errors import SceneError, SceneTypeError, check_choice
+from ..errors import SceneError
+from ..integrators._options import (LinearSolveOptions, OptionGroup, check_option, describe_default, describe_int,
+                                    option, renamed)
+from ..integrators._stage import NewtonOptions
 
-__all__ = ["ADAPTIVE_H_MIN", "BACKENDS", "MAX_STEPS", "DEFAULT_STEPS", "SolverConfig", "option", "describe_int", "steps_for_duration"]
+__all__ = ["ADAPTIVE_H_MIN", "BACKENDS", "MAX_STEPS", "DEFAULT_STEPS",
+           "SolverConfig", "TimeStepOptions", "option", "describe_int", "steps_for_duration"]
 
 #: Largest number of steps a run may ask for (a guard against overflowing step counts).
 MAX_STEPS = 10**12
@@ -38,16 +50,21 @@ DEFAULT_STEPS = 100
 ADAPTIVE_H_MIN = 1e-7
 
 
-def describe_int(value: int) -> str:
-    """``str(value)``, or its digit count when it is too long to show (Python refuses to print > 4300 digits)."""
-    if abs(value) < 10**30:
-        return str(value)
-    return f"an integer of about {int(abs(value).bit_length() * 0.30103) + 1} digits"
-
-
 def steps_for_duration(duration: float, dt: float) -> int:
     """Steps of size ``dt`` that cover ``duration`` [s]: ``ceil(duration / dt)`` (a relative 1e-9 slack absorbs
     rounding, so 1.0 / 0.01 is 100 steps); at least 1 for a positive duration, 0 for 0.
+
+    Parameters
+    ----------
+    duration : float
+        Simulated time [s].
+    dt : float
+        Step [s].
+
+    Returns
+    -------
+    int
+        The number of steps.
 
     Raises
     ------
@@ -63,204 +80,292 @@ def steps_for_duration(duration: float, dt: float) -> int:
     return max(int(math.ceil(ratio - 1e-9 * max(ratio, 1.0))), 1 if duration > 0 else 0)
 
 
-def option(default=None, *, kind: str, help: str, yaml: str | None = None, cli: str | None = None,
-           cli_aliases: tuple[str, ...] = (), metavar: str | None = None, lo: float | None = None,
-           hi: float | None = None, strict: bool = False, to: str = "run", kwarg: str | None = None):
-    """Declare a field of :class:`SolverConfig`.
+@dataclass(frozen=True)
+class TimeStepOptions(OptionGroup):
+    """The steps of a run: their size and number, or the tolerances of adaptive stepping.
+
+    Each field is declared once (:func:`option`); ``None`` stands for the declared default, and the defaults
+    that are rules are implemented here (:meth:`run_steps`, :meth:`tolerances`) or by the adaptive driver
+    (``max_step``: its ``h_max``).
 
     Parameters
     ----------
-    default
-        Value when not given (None: the integrator's or solver's own default).
-    kind : {"name", "float", "int", "options"}
-        A registered name (a string checked by the factory), a finite number, an integer, or options passed
-        through to another library (a string, or a mapping of names to scalars).
-    help : str
-        One line for ``--help`` and the docs.
-    yaml : str, optional
-        Key in the ``solver:`` block (default: the field name).
-    cli : str, optional
-        Command-line flag of ``springsim run`` (None: YAML and Python only).
-    cli_aliases : tuple of str
-        Older spellings of the flag, still accepted (``--rtol`` for ``--linear-rtol``).
-    lo, hi, strict
-        Bounds: ``>= lo`` (``> lo`` with ``strict``), ``<= hi``.
-    to : {"integrator", "solver", "run"}
-        Where the value goes: a keyword of :func:`~springsim.integrators.make_integrator`, an option of its
-        linear solver, or the driver.
-    kwarg : str, optional
-        The keyword name there (default: the field name).
-    """
-    meta = dict(kind=kind, help=help, yaml=yaml, cli=cli, cli_aliases=tuple(cli_aliases), metavar=metavar, lo=lo,
-                hi=hi, strict=strict, to=to, kwarg=kwarg)
-    return field(default=default, metadata=meta)
+    dt : float, optional
+        Time step [s] (YAML ``timestep``, flag ``--dt``); with adaptive stepping the first step and the frame
+        spacing.
+    steps : int, optional
+        Number of steps (default: from ``duration``, else :data:`DEFAULT_STEPS`).
+    duration : float, optional
+        Simulated time [s]; ``steps = ceil(duration / dt)``. Not with ``steps``.
+    time_rtol, time_atol : float, optional
+        Relative and absolute local error tolerances of adaptive time stepping (:meth:`tolerances`).
+    max_step : float, optional
+        Largest step of adaptive time stepping [s], at least :data:`ADAPTIVE_H_MIN` (default a tenth of the
+        run).
 
-
-def _check(f, value, where: str):
-    """``value`` converted and checked against field ``f``'s declaration; errors name ``where``."""
-    m = f.metadata
-    if value is None:
-        return None
-    kind = m["kind"]
-    if kind == "options":  # a string of "-name value" pairs, or a mapping name -> scalar
-        if isinstance(value, dict):
-            for k, v in value.items():
-                if not isinstance(k, str) or not (v is None or isinstance(v, (str, int, float, bool))):
-                    raise SceneTypeError(f"{where}.{k}", f"must be a string, number or boolean, got "
-                                                        f"{type(v).__name__}")
-            return dict(value)
-        if not isinstance(value, str):
-            raise SceneTypeError(where, f"must be a string or a mapping, got {type(value).__name__} {value!r:.60}")
-        return value
-    if kind == "name":
-        if not isinstance(value, str):
-            raise SceneTypeError(where, f"must be a name, got {type(value).__name__} {value!r:.60}")
-        return value
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or (kind == "int" and not isinstance(value, int)):
-        what = "an integer" if kind == "int" else "a number"
-        shown = describe_int(value) if isinstance(value, int) and not isinstance(value, bool) else f"{value!r:.60}"
-        raise SceneTypeError(where, f"must be {what}, got {type(value).__name__} {shown}")
-    if kind == "float":
-        try:
-            value = float(value)
-        except OverflowError:
-            value = math.inf
-        if not math.isfinite(value):
-            raise SceneError(where, f"must be finite, got {value}")
-    lo, hi, strict = m["lo"], m["hi"], m["strict"]
-    if lo is not None and (value <= lo if strict else value < lo):
-        shown = describe_int(value) if kind == "int" else value
-        raise SceneError(where, f"must be {'>' if strict else '>='} {lo:g}, got {shown}")
-    if hi is not None and value > hi:
-        raise SceneError(where, f"must be <= {describe_int(hi) if kind == 'int' else hi}, got "
-                                f"{describe_int(value) if kind == 'int' else value}")
-    return value
-
-
-@dataclass
-class SolverConfig:
-    """How to run a scene: the ``solver:`` block of a YAML scene, the flags of ``springsim run``.
-
-    Every field is declared with :func:`option` (see the module docstring); ``None`` means the
-    default of the integrator, the linear solver or the driver.
+    Raises
+    ------
+    SceneError
+        Naming the field of a value its declaration refuses; with the path ``""`` for ``steps`` and
+        ``duration`` together.
     """
 
-    integrator: str = option("implicit_euler", kind="name", yaml="type", cli="--integrator", metavar="NAME",
-                             help="time integrator (default: the scene's solver.type)", to="run")
-    dt: float = option(None, kind="float", yaml="timestep", cli="--dt", metavar="H", lo=0.0, strict=True,
-                       help="time step [s] (default: the scene's solver.timestep); with adaptive stepping the first step "
-                            "and the frame spacing")
+    dt: float | None = option(None, kind="float", yaml="timestep", cli="--dt", metavar="H", lo=0.0, strict=True,
+                              default_text="the scene's solver.timestep",
+                              help="time step [s]; with adaptive stepping the first step and the frame spacing")
     steps: int | None = option(None, kind="int", cli="--steps", metavar="N", lo=0, hi=MAX_STEPS,
-                               help="number of steps (default: from duration, else 100)")
+                               default_text=f"from duration, else {DEFAULT_STEPS}", help="number of steps")
     duration: float | None = option(None, kind="float", cli="--duration", metavar="T", lo=0.0,
                                     help="simulated time [s] (steps = ceil(T/dt)); give steps or duration")
-    linear_solver: str | None = option(None, kind="name", cli="--solver", metavar="NAME", to="integrator",
-                                       kwarg="solver", help="linear solver of implicit integrators (default: auto)")
-    jacobian: str | None = option(None, kind="name", cli="--jacobian", metavar="MODE", to="integrator",
-                                  help="Jacobian mode (default: mixed for minimize stages, exact for pa2, else exact "
-                                       "where the solver takes any matrix and spd where it needs SPD matrices)")
-    linear_rtol: float | None = option(None, kind="float", cli="--linear-rtol", cli_aliases=("--rtol",),
-                                       metavar="R", lo=0.0, strict=True, to="solver", kwarg="rtol",
-                                       help="relative residual tolerance of iterative linear solves, serial and "
-                                            "PETSc (default: springsim.linsolve.DEFAULT_RTOL)")
-    stage_solver: str | None = option(None, kind="name", cli="--stage-solver", metavar="RULE", to="integrator",
-                                      help="how implicit stages are solved: minimize (the incremental potential, "
-                                           "projected Newton and a line search on it; the default), residual "
-                                           "(Newton with a line search on the residual) or pa2 (the course's rule)")
-    force_rtol: float | None = option(None, kind="float", cli="--force-rtol", metavar="R", lo=0.0, strict=True,
-                                      to="integrator",
-                                      help="minimize stages: stop when the force imbalance |grad E| is below this "
-                                           "fraction of the stage's force scale (default 1e-5)")
-    force_atol: float | None = option(None, kind="float", cli="--force-atol", metavar="F", lo=0.0,
-                                      to="integrator",
-                                      help="minimize stages: absolute force imbalance tolerance [N] (default 0)")
-    newton_tol: float | None = option(None, kind="float", cli="--newton-tol", metavar="TOL", lo=0.0, strict=True,
-                                      to="integrator", help="residual and pa2 stages: Newton update tolerance on "
-                                                            "|dv| [m/s] (default 1e-5)")
-    newton_maxiter: int | None = option(None, kind="int", cli="--newton-maxiter", metavar="N", lo=1, hi=10**6,
-                                        to="integrator",
-                                        help="Newton iteration limit of a stage (default 50 for minimize stages, 5 "
-                                             "for pa2; residual: 5 for implicit_euler, 50 for the others)")
-    residual_rtol: float | None = option(None, kind="float", cli="--residual-rtol", metavar="R", lo=0.0,
-                                         strict=True, to="integrator",
-                                         help="Newton residual tolerance, relative to the balanced terms "
-                                              "(default 1e-3)")
-    forcing: str | None = option(None, kind="name", cli="--forcing", metavar="RULE", to="integrator",
-                                 help="relative tolerance of Newton's linear solves: fixed (the solver's rtol, default) "
-                                      "or eisenstat-walker (loose far from the root, tightening as Newton converges)")
     time_rtol: float | None = option(None, kind="float", cli="--time-rtol", metavar="R", lo=0.0, strict=True,
+                                     default_text="fixed steps; with only time_atol, equal to it",
                                      help="adaptive time stepping (bdf2, tr_bdf2, energy_momentum): relative local "
-                                          "error tolerance (default: fixed steps; with only time_atol, equal to it)")
+                                          "error tolerance")
     time_atol: float | None = option(None, kind="float", cli="--time-atol", metavar="A", lo=0.0, strict=True,
-                                     help="adaptive time stepping: absolute local error tolerance [m, m/s] (default: "
-                                          "time_rtol)")
+                                     default_text="time_rtol",
+                                     help="adaptive time stepping: absolute local error tolerance [m, m/s]")
     max_step: float | None = option(None, kind="float", cli="--max-step", metavar="H", lo=ADAPTIVE_H_MIN,
-                                    help="adaptive time stepping: largest step [s], at least 1e-7 s (default a tenth "
-                                         "of the run)")
+                                    needs="adaptive", default_text="a tenth of the run",
+                                    help=f"adaptive time stepping: largest step [s], at least {ADAPTIVE_H_MIN:g} s")
 
-    backend: str | None = option(None, kind="name", cli="--backend", metavar="NAME",
-                                 help="serial (default) or petsc: distributed assembly and solves on PETSc, run under "
-                                      "mpiexec (docs/distributed.md)")
-    partitioner: str | None = option(None, kind="name", cli="--partitioner", metavar="NAME",
-                                     help="petsc backend: how the particles are split over the ranks: contiguous "
-                                          "(default; blocks of the serial numbering) or a graph partitioner of "
-                                          "PETSc (ptscotch, parmetis)")
-    petsc_options: str | dict | None = option(None, kind="options", cli="--petsc-options", metavar="OPTS",
-                                              help="PETSc options of the petsc backend, e.g. '-ksp_type gmres "
-                                                   "-pc_gamg_threshold 0.02' (in YAML also a mapping; PETSC_OPTIONS "
-                                                   "applies too)")
-
-    def __post_init__(self):
-        self.validate()
-
-    # -- declarations --------------------------------------------------------------------------------
-    @classmethod
-    def yaml_key(cls, name: str) -> str:
-        """The ``solver:`` key of field ``name``."""
-        return cls._fields()[name].metadata["yaml"] or name
-
-    @staticmethod
-    def _fields() -> dict:
-        return {f.name: f for f in fields(SolverConfig)}
-
-    # -- validation ----------------------------------------------------------------------------------
-    def validate(self) -> "SolverConfig":
-        """Check every field against its declaration and the registries; return self.
+    def check_combination(self) -> None:
+        """``steps`` and ``duration`` are not both given.
 
         Raises
         ------
         SceneError
-            With the ``solver.<key>`` path of the offending field.
+            With the path ``""`` (the combination).
         """
-        for f in fields(self):
-            setattr(self, f.name, _check(f, getattr(self, f.name), f"solver.{self.yaml_key(f.name)}"))
         if self.steps is not None and self.duration is not None:
-            raise SceneError("solver", "give steps or duration, not both")
-        from ..forces import JACOBIAN_MODES
-        from ..integrators import integrator_class
-        from ..integrators._implicit import FORCING_RULES, STAGE_SOLVERS
-        from ..linsolve import linear_solver_class
+            raise SceneError("", "give steps or duration, not both")
 
-        for name, check in (("integrator", integrator_class), ("linear_solver", linear_solver_class)):
-            value = getattr(self, name)
-            if value is not None:
-                try:
-                    check(value)
-                except SceneError as e:
-                    raise SceneError(f"solver.{self.yaml_key(name)}", e.message) from None
-        def partitioners():
-            # by module path, and only when asked for: the distributed package's lazy names (its driver) import
-            # the drivers, which import this module; the partition module itself does not
-            return importlib.import_module("..distributed.partition", __package__).PARTITIONERS
+    @property
+    def adaptive(self) -> bool:
+        """Whether the run uses adaptive time stepping (a time tolerance is set)."""
+        return self.time_rtol is not None or self.time_atol is not None
 
-        for name, what, allowed in (("backend", "backend", lambda: BACKENDS),
-                                    ("partitioner", "partitioner", partitioners),
-                                    ("forcing", "forcing rule", lambda: FORCING_RULES),
-                                    ("stage_solver", "stage solver", lambda: STAGE_SOLVERS),
-                                    ("jacobian", "jacobian mode", lambda: JACOBIAN_MODES)):
-            value = getattr(self, name)
-            if value is not None:
-                check_choice(value, allowed(), param=f"solver.{name}", what=what)
+    def tolerances(self) -> tuple[float, float]:
+        """The relative and absolute tolerances of adaptive stepping: each defaults to the other.
+
+        Returns
+        -------
+        time_rtol, time_atol : float
+
+        Raises
+        ------
+        ValueError
+            When neither is given (the run is not adaptive).
+        """
+        if not self.adaptive:
+            raise ValueError("fixed steps: no time tolerance is given")
+        rtol = self.time_rtol if self.time_rtol is not None else self.time_atol
+        atol = self.time_atol if self.time_atol is not None else self.time_rtol
+        return rtol, atol
+
+    def run_steps(self) -> int:
+        """Steps of the run: ``steps``, else ``duration`` in steps of ``dt``, else :data:`DEFAULT_STEPS`.
+
+        Returns
+        -------
+        int
+
+        Raises
+        ------
+        SceneError
+            Naming ``duration`` when it needs more than :data:`MAX_STEPS` steps.
+        """
+        if self.steps is not None:
+            return self.steps
+        if self.duration is not None:
+            try:
+                return steps_for_duration(self.duration, self.dt)
+            except ValueError as e:
+                raise SceneError("duration", str(e)) from None
+        return DEFAULT_STEPS
+
+
+def _integrators():
+    """The registered integrator names (looked up when checked: integrators registered later count)."""
+    from ..integrators import INTEGRATORS
+
+    return INTEGRATORS
+
+
+def _partitioners():
+    """The partitioner names of the petsc backend, by module path and only when asked for: the distributed
+    package's lazy names (its driver) import the drivers, which import this module; the partition module itself
+    does not."""
+    return importlib.import_module("..distributed.partition", __package__).PARTITIONERS
+
+
+#: The option groups of :class:`SolverConfig`: attribute -> group class.
+GROUPS = {"time": TimeStepOptions, "linear": LinearSolveOptions, "newton": NewtonOptions}
+
+
+@dataclass(frozen=True, init=False)
+class SolverConfig:
+    """How to run a scene: the ``solver:`` block of a YAML scene, the flags of ``springsim run``.
+
+    The option groups (:data:`GROUPS`: :class:`TimeStepOptions` as ``time``, :class:`LinearSolveOptions` as
+    ``linear``, :class:`NewtonOptions` as ``newton``) and the run-level fields, every field declared once
+    (module docstring). The groups' fields read as attributes too (``config.dt``, ``config.jacobian``), and
+    the constructor takes them as keywords, which override the fields of a group given (``SolverConfig(dt=0.01,
+    jacobian="spd")``). ``None`` stands for the declared default. The config is frozen and checked on
+    construction.
+
+    Parameters
+    ----------
+    integrator : str
+        A registered integrator (YAML ``type``, flag ``--integrator``); default ``"implicit_euler"``.
+    time : TimeStepOptions, optional
+        The steps of the run.
+    linear : LinearSolveOptions, optional
+        The linear solver of implicit integrators.
+    newton : NewtonOptions, optional
+        How implicit stages are solved.
+    backend : {"serial", "petsc"}, optional
+        Where the run executes (default ``serial``).
+    partitioner : str, optional
+        How the petsc backend splits the particles over the ranks (default ``contiguous``).
+    petsc_options : str or dict, optional
+        PETSc options of the petsc backend.
+    **options
+        The fields of the groups by name (``dt``, ``steps``, ``linear_solver``, ``jacobian``, ...).
+
+    Raises
+    ------
+    SceneError
+        Naming ``solver.<key>`` (the YAML path) of a value a declaration refuses.
+    TypeError
+        For an unknown keyword, or a group of the wrong class.
+    """
+
+    integrator: str = option("implicit_euler", kind="name", yaml="type", cli="--integrator", metavar="NAME",
+                             choices=_integrators, what="integrator", default_text="the scene's solver.type",
+                             filled=True, help="time integrator")
+    time: TimeStepOptions = field(default_factory=TimeStepOptions)
+    linear: LinearSolveOptions = field(default_factory=LinearSolveOptions)
+    newton: NewtonOptions = field(default_factory=NewtonOptions)
+    backend: str | None = option("serial", kind="name", cli="--backend", metavar="NAME", choices=BACKENDS,
+                                 what="backend", help="serial or petsc: distributed assembly and solves on PETSc, "
+                                                      "run under mpiexec (docs/distributed.md)")
+    partitioner: str | None = option("contiguous", kind="name", cli="--partitioner", metavar="NAME",
+                                     choices=_partitioners, what="partitioner", needs="petsc",
+                                     help="petsc backend: how the particles are split over the ranks: contiguous "
+                                          "(blocks of the serial numbering) or a graph partitioner of PETSc "
+                                          "(ptscotch, parmetis)")
+    petsc_options: str | dict | None = option(None, kind="options", cli="--petsc-options", metavar="OPTS",
+                                              needs="petsc",
+                                              help="PETSc options of the petsc backend, e.g. '-ksp_type gmres "
+                                                   "-pc_gamg_threshold 0.02' (in YAML also a mapping; PETSC_OPTIONS "
+                                                   "applies too)")
+
+    def __init__(self, integrator: str = "implicit_euler", *, time: TimeStepOptions | None = None,
+                 linear: LinearSolveOptions | None = None, newton: NewtonOptions | None = None,
+                 backend: str | None = None, partitioner: str | None = None, petsc_options=None, **options):
+        groups = {"time": time, "linear": linear, "newton": newton}
+        try:
+            for attr, cls in GROUPS.items():
+                given = groups[attr]
+                if given is not None and not isinstance(given, cls):
+                    raise TypeError(f"{attr} must be a {cls.__name__}, got {type(given).__name__}")
+                mine = {k: options.pop(k) for k in list(options) if k in cls.declarations()}
+                if given is None or mine:
+                    values = {**({} if given is None else given.given()), **mine}  # keywords override the group
+                    given = cls(**{k: v for k, v in values.items() if v is not None})
+                object.__setattr__(self, attr, given)
+            if options:
+                raise TypeError(f"SolverConfig() got an unexpected keyword argument {next(iter(options))!r}")
+            own = {f.name: f for f in fields(self) if f.name not in GROUPS}
+            for name, value in (("integrator", integrator), ("backend", backend), ("partitioner", partitioner),
+                                ("petsc_options", petsc_options)):
+                object.__setattr__(self, name, check_option(own[name], value, name))
+        except SceneError as e:
+            raise renamed(e, {"": "solver", **{n: f"solver.{self.yaml_key(n)}" for n in self.declarations()}}) \
+                from None
+
+    # -- declarations --------------------------------------------------------------------------------
+    @classmethod
+    def declarations(cls) -> dict:
+        """Every option of a run by field name, in declaration order: ``(group, field)``.
+
+        Returns
+        -------
+        dict
+            Field name -> ``(attribute of its group in the config, or None for a run-level field,
+            dataclasses.Field)``.
+        """
+        out = {}
+        for f in fields(cls):
+            if f.name in GROUPS:
+                out.update({name: (f.name, g) for name, g in GROUPS[f.name].declarations().items()})
+            else:
+                out[f.name] = (None, f)
+        return out
+
+    @classmethod
+    def yaml_key(cls, name: str) -> str:
+        """The ``solver:`` key of field ``name`` (a Python-only option: its name).
+
+        Parameters
+        ----------
+        name : str
+            A field name (:meth:`declarations`).
+
+        Returns
+        -------
+        str
+        """
+        return cls.declarations()[name][1].metadata["yaml"] or name
+
+    @classmethod
+    def keyword(cls, name: str) -> str:
+        """The :func:`~springsim.integrators.make_integrator` keyword of field ``name``.
+
+        Parameters
+        ----------
+        name : str
+            A field name (:meth:`declarations`).
+
+        Returns
+        -------
+        str
+        """
+        return cls.declarations()[name][1].metadata["kwarg"] or name
+
+    @classmethod
+    def default(cls, name: str):
+        """The declared default of field ``name`` (a value, a rule, or None).
+
+        Parameters
+        ----------
+        name : str
+            A field name (:meth:`declarations`).
+
+        Returns
+        -------
+        object
+        """
+        return cls.declarations()[name][1].metadata["default"]
+
+    def flat(self) -> dict:
+        """Every field's value by name, the groups' included (None: not given).
+
+        Returns
+        -------
+        dict
+        """
+        return {name: getattr(self, name) for name in self.declarations()}
+
+    # -- validation ----------------------------------------------------------------------------------
+    def validate(self) -> "SolverConfig":
+        """The config itself: it was checked on construction (kept for callers of the former mutable config).
+
+        Returns
+        -------
+        SolverConfig
+            ``self``.
+        """
         return self
 
     @classmethod
@@ -271,14 +376,32 @@ class SolverConfig:
         value is null (``timestep: null``, ``gravity: ~``) counts as not given: the field takes its default,
         and a required field without one is refused.
 
+        Parameters
+        ----------
+        block : dict
+            The ``solver:`` mapping.
+        default_dt : float, optional
+            The time step when the block has none.
+        extra : tuple of str
+            Other keys the block may hold (the model's ``gravity`` and ``up_axis``).
+
+        Returns
+        -------
+        config : SolverConfig
+        extra : dict
+            The values of the ``extra`` keys given.
+
         Raises
         ------
         SceneError
             Naming ``solver.<key>`` for unknown, missing or invalid keys.
         """
+        from ..errors import SceneTypeError
+
         if type(block) is not dict:
             raise SceneTypeError("solver", f"must be a mapping, got {type(block).__name__}")
-        by_key = {cls.yaml_key(n): n for n in cls._fields()}
+        by_key = {f.metadata["yaml"] or n: n for n, (_, f) in cls.declarations().items()
+                  if f.metadata["yaml"] is not False}
         allowed = tuple(by_key) + tuple(extra)
         for k in block:
             if k not in allowed:
@@ -294,25 +417,49 @@ class SolverConfig:
 
     # -- command line -------------------------------------------------------------------------------------
     @classmethod
-    def add_arguments(cls, parser, choices: dict | None = None, defaults: dict | None = None) -> None:
-        """Add a flag for every field that declares one (type-checked, one-line errors).
+    def help_text(cls, name: str) -> str:
+        """The ``--help`` line of field ``name``: its help, its default rendered from the declaration, and the
+        names it allows.
+
+        Parameters
+        ----------
+        name : str
+            A field name (:meth:`declarations`).
+
+        Returns
+        -------
+        str
+        """
+        f = cls.declarations()[name][1]
+        m = f.metadata
+        text = m["help"]
+        default = describe_default(f)
+        if default is not None:
+            shown = m["default_text"] is not None or not isinstance(m["default"], (str, int, float))
+            text += f" (default: {default})" if shown else f" (default {default})"
+        if m["kind"] == "name" and m["choices"] is not None:
+            text += f"; one of: {', '.join(cls._choices(f))}"
+        return text
+
+    @staticmethod
+    def _choices(f) -> list:
+        choices = f.metadata["choices"]
+        return list(choices() if callable(choices) else choices)
+
+    @classmethod
+    def add_arguments(cls, parser) -> None:
+        """Add a flag for every field that declares one (type-checked, one-line errors, the default and the allowed
+        names in ``--help`` from the declaration).
 
         Parameters
         ----------
         parser : argparse.ArgumentParser
             The parser of a command that runs a scene.
-        choices : dict, optional
-            Field name -> the allowed names of a ``"name"`` field (checked by argparse, listed in ``--help``).
-        defaults : dict, optional
-            Field name -> the default its owner declares (a field whose default is None: the integrator's or
-            solver's own), shown in ``--help`` in place of the help text's ``(default: ...)``.
         """
         import argparse
 
-        choices = choices or {}
-        defaults = defaults or {}
         steps_or_duration = parser.add_mutually_exclusive_group()
-        for f in fields(cls):
+        for name, (_, f) in cls.declarations().items():
             m = f.metadata
             if not m["cli"]:
                 continue
@@ -320,7 +467,7 @@ class SolverConfig:
             def convert(text, f=f):
                 kind = f.metadata["kind"]
                 if kind in ("name", "options"):
-                    return text
+                    return text  # names: argparse checks the choices
                 what = "an integer" if kind == "int" else "a number"
                 if len(text) > 40:
                     raise argparse.ArgumentTypeError(f"must be {what}, got a {len(text)}-character value")
@@ -329,77 +476,120 @@ class SolverConfig:
                 except ValueError:
                     raise argparse.ArgumentTypeError(f"must be {what}, got {text!r}") from None
                 try:
-                    return _check(f, value, f.metadata["cli"])
+                    return check_option(f, value, f.metadata["cli"])
                 except SceneError as e:
                     raise argparse.ArgumentTypeError(e.message) from None
 
-            convert.__name__ = f.name
-            help_ = m["help"]
-            if f.name in defaults:
-                help_ = f"{help_.partition(' (default')[0]} (default {defaults[f.name]:g})"
-            if f.name in choices:
-                help_ += f"; one of: {', '.join(choices[f.name])}"
-            target = steps_or_duration if f.name in ("steps", "duration") else parser
-            target.add_argument(m["cli"], *m["cli_aliases"], dest=f.name, type=convert, metavar=m["metavar"],
-                                choices=choices.get(f.name), help=f"{help_} (overrides solver.{m['yaml'] or f.name})")
+            convert.__name__ = name
+            choices = cls._choices(f) if m["kind"] == "name" and m["choices"] is not None else None
+            target = steps_or_duration if name in ("steps", "duration") else parser
+            target.add_argument(m["cli"], *m["cli_aliases"], dest=name, type=convert, metavar=m["metavar"],
+                                choices=choices, help=f"{cls.help_text(name)} (overrides solver.{cls.yaml_key(name)})")
 
     def with_overrides(self, **overrides) -> "SolverConfig":
-        """A validated copy with the non-None ``overrides`` applied (command-line flags); ``steps`` and ``duration``
-        replace each other."""
-        given = {k: v for k, v in overrides.items() if v is not None and k in self._fields()}
+        """A checked copy with the non-None ``overrides`` applied (command-line flags); ``steps`` and ``duration``
+        replace each other.
+
+        Parameters
+        ----------
+        **overrides
+            Field name -> value (None, or a name that is no field: ignored).
+
+        Returns
+        -------
+        SolverConfig
+
+        Raises
+        ------
+        SceneError
+            Naming ``solver.<key>`` of an invalid value.
+        """
+        given = {k: v for k, v in overrides.items() if v is not None and k in self.declarations()}
         if "steps" in given:
             given.setdefault("duration", None)
         if "duration" in given:
             given.setdefault("steps", None)
-        return replace(self, **given)
+        return SolverConfig(**{**self.flat(), **given})
 
     # -- what the options do ------------------------------------------------------------------------------
     @property
     def adaptive(self) -> bool:
         """Whether the run uses adaptive time stepping (a time tolerance is set)."""
-        return self.time_rtol is not None or self.time_atol is not None
+        return self.time.adaptive
+
+    @property
+    def petsc(self) -> bool:
+        """Whether the run executes on the petsc backend."""
+        return self.backend == "petsc"
 
     def run_steps(self) -> int:
-        """Steps of the run: ``steps``, else ``duration`` in steps of ``dt``, else :data:`DEFAULT_STEPS`."""
-        if self.steps is not None:
-            return self.steps
-        if self.duration is not None:
-            try:
-                return steps_for_duration(self.duration, self.dt)
-            except ValueError as e:
-                raise SceneError("solver.duration", str(e)) from None
-        return DEFAULT_STEPS
+        """Steps of the run: ``steps``, else ``duration`` in steps of ``dt``, else :data:`DEFAULT_STEPS`.
+
+        Returns
+        -------
+        int
+
+        Raises
+        ------
+        SceneError
+            Naming ``solver.duration`` when it needs more than :data:`MAX_STEPS` steps.
+        """
+        try:
+            return self.time.run_steps()
+        except SceneError as e:
+            raise renamed(e, {"duration": "solver.duration"}) from None
 
     def integrator_options(self) -> dict:
-        """Keyword options for :func:`~springsim.integrators.make_integrator` (only those that are set)."""
-        opts: dict = {}
-        for f in fields(self):
-            value, m = getattr(self, f.name), f.metadata
-            if value is None or m["to"] == "run":
-                continue
-            if m["to"] == "solver":
-                opts.setdefault("solver_options", {})[m["kwarg"] or f.name] = value
-            else:
-                opts[m["kwarg"] or f.name] = value
-        return opts
+        """Keyword options for :func:`~springsim.integrators.make_integrator`: the fields of the linear solve and
+        Newton groups that are set, by their keywords.
+
+        Returns
+        -------
+        dict
+        """
+        return {self.keyword(name): value for group in (self.linear, self.newton)
+                for name, value in group.given().items()}
 
     def unused(self, integrator=None) -> list[str]:
-        """Fields that are set but have no effect on this run (the YAML keys): Newton options of integrators
-        without Newton iterations, the options the built ``integrator``'s stage rule does not use, ``max_step``
-        without adaptive stepping."""
+        """Fields that are set but have no effect on this run (their YAML keys), derived from the declarations.
+
+        The options the integrator class does not read (its ``unused_options``: Newton options of integrators
+        without Newton iterations, ...), those the stage rule of the built ``integrator`` does not read (its
+        ``ignored_options()``), and those whose declaration ``needs`` a property the run lacks (``max_step``
+        without adaptive stepping, the petsc backend's options on the serial one).
+
+        Parameters
+        ----------
+        integrator : Integrator, optional
+            The integrator built for this config.
+
+        Returns
+        -------
+        list of str
+            Sorted.
+        """
         from ..integrators import integrator_class
 
         skip = integrator_class(self.integrator).unused_options
         if integrator is not None and hasattr(integrator, "ignored_options"):
             skip = skip | integrator.ignored_options()
-        out = [self.yaml_key(f.name) for f in fields(self)
-               if getattr(self, f.name) is not None and f.metadata["to"] != "run"
-               and (f.metadata["kwarg"] or f.name) in skip]
-        if self.linear_rtol is not None and "solver_options" in skip:
-            out.append("linear_rtol")
-        if self.max_step is not None and not self.adaptive:
-            out.append("max_step")
-        for name in ("petsc_options", "partitioner"):
-            if getattr(self, name) is not None and self.backend != "petsc":
-                out.append(name)
-        return sorted(set(out))
+        out = []
+        for name, (group, f) in self.declarations().items():
+            if getattr(self, name) is None:
+                continue
+            needs = f.metadata["needs"]
+            if (group in ("linear", "newton") and self.keyword(name) in skip) or (needs and not getattr(self, needs)):
+                out.append(self.yaml_key(name))
+        return sorted(out)
+
+
+def _flat_attribute(group: str, name: str) -> property:
+    """A read-only attribute of :class:`SolverConfig` for field ``name`` of its group ``group``."""
+    return property(lambda self: getattr(getattr(self, group), name),
+                    doc=f"``{group}.{name}`` (:class:`{GROUPS[group].__name__}`).")
+
+
+for _group, _cls in GROUPS.items():
+    for _name in _cls.declarations():
+        setattr(SolverConfig, _name, _flat_attribute(_group, _name))
+del _group, _cls, _name

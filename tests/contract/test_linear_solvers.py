@@ -147,7 +147,7 @@ def test_auto_choice_by_size_and_symmetry():
     assert res.method == "auto:amg-cg" and res.converged
 
 
-@pytest.mark.parametrize("kernels", ["scipy", "numba"])
+@pytest.mark.parametrize("kernels", ["numpy", "numba"])
 @pytest.mark.parametrize("sweep", ["forward", "backward"])
 @pytest.mark.parametrize("bs", [2, 3, 6])
 def test_block_gauss_seidel_matches_pyamg(bs, sweep, kernels):

@@ -74,13 +74,13 @@ def test_block_diagonal_inverse_matches_lapack(bs):
 
     S = _random_bsr(25, 25, (bs, bs), 0.2, bs)
     A = (S + S.T + 10 * sp.eye(25 * bs)).tobsr(blocksize=(bs, bs))
-    D_ref, inv_ref = block_diagonal_inverse(A, "scipy")
+    D_ref, inv_ref = block_diagonal_inverse(A, "numpy")
     D, inv = block_diagonal_inverse(A, "numba")
     np.testing.assert_array_equal(D, D_ref)
     np.testing.assert_allclose(inv, inv_ref, rtol=0, atol=1e-13 * np.abs(inv_ref).max())
     hole = sp.bsr_matrix((S.data, S.indices, S.indptr), shape=S.shape)  # a random pattern: some rows lack a diagonal
     assert (sp.csr_matrix((np.ones(S.indices.size), S.indices, S.indptr)).diagonal() == 0).any()
-    for kernels in ("scipy", "numba"):
+    for kernels in ("numpy", "numba"):
         with pytest.raises(np.linalg.LinAlgError):
             block_diagonal_inverse(hole, kernels)
 
@@ -96,16 +96,26 @@ def test_plan_is_rebuilt_when_a_pattern_changes():
     np.testing.assert_array_equal(C2.toarray(), (X @ Y2).toarray())
     _, plan3 = bsr_matmat(X, Y2, "numba", plan2)
     assert plan3 is plan2
-    assert bsr_matmat(X, Y, "scipy")[1] is None
+    assert bsr_matmat(X, Y, "numpy")[1] is None
 
 
 def test_kernels_option_values(monkeypatch):
-    assert resolve_kernels("scipy") == "scipy"
+    """The AMG preconditioner's ``kernels`` takes the values of every ``kernels`` option, checked by one function;
+    its former ``"scipy"`` is a deprecated alias of ``"numpy"``."""
+    from springsim._runtime.accel import KERNELS
+    from springsim.forces.spring import ForceSpring
+
+    assert _kernels.KERNELS == ForceSpring.KERNELS == KERNELS == ("auto", "numba", "numpy")
+    assert resolve_kernels("numpy") == "numpy"
     assert resolve_kernels("auto") == "numba"
-    with pytest.raises(ValueError, match="kernels must be one of"):
+    with pytest.raises(ValueError, match="kernels must be one of 'auto', 'numba', 'numpy', got 'fortran'"):
         resolve_kernels("fortran")
+    with pytest.warns(DeprecationWarning, match="kernels='scipy' is deprecated; use 'numpy'"):
+        assert resolve_kernels("scipy") == "numpy"
+    with pytest.warns(DeprecationWarning, match="kernels='scipy' is deprecated"):
+        assert AMGPreconditioner(kernels="scipy").kernels == "numpy"
     monkeypatch.setattr(_kernels, "numba_available", lambda: False)
-    assert resolve_kernels("auto") == "scipy"       # the core works without numba
+    assert resolve_kernels("auto") == "numpy"       # the core works without numba
     with pytest.raises(ValueError, match=r"needs numba.*springsim\[accel\]"):
         AMGPreconditioner(kernels="numba")
 
@@ -128,7 +138,7 @@ def test_hierarchy_matches_scipy_products_and_reuses_its_plans():
     """The same aggregates: every level's operators equal to round-off (the products sum in scipy's order;
     the smoothers see sorted rows), and a second setup with the plans reuses all of them."""
     M, B, _ = _cloth_system()
-    ref, aggs = smoothed_aggregation_levels(M, B, max_coarse=10, kernels="scipy")
+    ref, aggs = smoothed_aggregation_levels(M, B, max_coarse=10, kernels="numpy")
     got, _ = smoothed_aggregation_levels(M, B, max_coarse=10, kernels="numba", aggregates=aggs)
     assert [lv.A.shape for lv in got] == [lv.A.shape for lv in ref] and len(got) >= 3
     for a, b in zip(ref, got):
@@ -142,7 +152,7 @@ def test_hierarchy_matches_scipy_products_and_reuses_its_plans():
                                            products=plans)
     for old, new in zip(plans, (lv.products for lv in again[:-1])):
         assert all(new[k] is old[k] for k in old)
-    for a, b in zip(again, smoothed_aggregation_levels(1.5 * M, B, max_coarse=10, kernels="scipy",
+    for a, b in zip(again, smoothed_aggregation_levels(1.5 * M, B, max_coarse=10, kernels="numpy",
                                                        aggregates=aggs)[0]):
         assert abs(a.A - b.A).max() <= 1e-13 * abs(b.A).max()
 
@@ -158,8 +168,8 @@ def test_smoothed_prolongator_matches_scipy():
 
     M, B, _ = _cloth_system()
     T, _ = fit_candidates(standard_aggregation(symmetric_strength_of_connection(M, theta=0.1))[0], B)
-    _, Dinv = block_diagonal_inverse(M, "scipy")
-    ref = smoothed_prolongator(bsr_matmat(M, T, "scipy")[0], T, Dinv, 0.7, "scipy")
+    _, Dinv = block_diagonal_inverse(M, "numpy")
+    ref = smoothed_prolongator(bsr_matmat(M, T, "numpy")[0], T, Dinv, 0.7, "numpy")
     P = smoothed_prolongator(bsr_matmat(M, T, "numba")[0], T, Dinv, 0.7, "numba")
     assert P.blocksize == ref.blocksize == (3, 6)
     np.testing.assert_allclose(P.toarray(), ref.toarray(), rtol=0, atol=1e-14 * abs(ref).max())
@@ -180,7 +190,7 @@ def test_simulation_with_compiled_setup_matches_the_pure_path(solver, jacobian, 
     from springsim.scene.gallery import BENCHMARK_DT, benchmark_cloth
 
     runs = {}
-    for kernels in ("scipy", "numba"):
+    for kernels in ("numpy", "numba"):
         model = benchmark_cloth(16, kd=kd)
         integ = make_integrator("linearized_implicit", model, solver=solver, jacobian=jacobian,
                                 solver_options={"rtol": 1e-10, "kernels": kernels})
@@ -194,7 +204,7 @@ def test_simulation_with_compiled_setup_matches_the_pure_path(solver, jacobian, 
         cycle = integ.solver.preconditioner.describe()["cycle"]
         assert cycle == ("compiled" if kernels == "numba" else "pyamg")
         runs[kernels] = (s0.particle_q.copy(), its)
-    (q_ref, it_ref), (q, it) = runs["scipy"], runs["numba"]
+    (q_ref, it_ref), (q, it) = runs["numpy"], runs["numba"]
     assert np.abs(q_ref - benchmark_cloth(16).particle_q).max() > 0.05  # it fell
     assert np.max(np.abs(q - q_ref)) < 1e-9
     assert np.max(np.abs(np.subtract(it, it_ref))) <= 1
@@ -212,8 +222,8 @@ def test_compiled_vcycle_matches_pyamg_cycle_and_is_symmetric():
     levels, _ = smoothed_aggregation_levels(M, B, max_coarse=10, kernels="numba")
     ml = MultilevelSolver(levels, coarse_solver="pinv")
     for lv in ml.levels[:-1]:
-        lv.presmoother = BlockGaussSeidel(lv.A, "forward", "scipy")
-        lv.postsmoother = BlockGaussSeidel(lv.A, "backward", "scipy")
+        lv.presmoother = BlockGaussSeidel(lv.A, "forward", "numpy")
+        lv.postsmoother = BlockGaussSeidel(lv.A, "backward", "numpy")
     cycle = CompiledVCycle(ml.levels, ml.coarse_solver)
     rng = np.random.default_rng(7)
     r, u, v = rng.standard_normal((3, M.shape[0]))
@@ -228,20 +238,20 @@ def test_compiled_vcycle_matches_pyamg_cycle_and_is_symmetric():
 
 
 def test_amg_uses_the_compiled_cycle_only_with_numba_kernels():
-    """``kernels="numba"`` runs the compiled cycle, ``"scipy"`` pyamg's; both precondition CG alike."""
+    """``kernels="numba"`` runs the compiled cycle, ``"numpy"`` pyamg's; both precondition CG alike."""
     from springsim.linsolve import make_linear_solver
 
     _, _, A = _cloth_system()
     b = np.random.default_rng(2).standard_normal(A.shape[0])
     iterations = {}
-    for kernels, cycle in (("numba", "compiled"), ("scipy", "pyamg")):
+    for kernels, cycle in (("numba", "compiled"), ("numpy", "pyamg")):
         pre = AMGPreconditioner(kernels=kernels)
         pre.build(A)
         assert pre.describe()["cycle"] == cycle
         res = make_linear_solver("amg-cg", rtol=1e-10, kernels=kernels).solve(A, b)
         assert res.converged and res.residual <= 1e-10
         iterations[kernels] = res.iterations
-    assert abs(iterations["numba"] - iterations["scipy"]) <= 1
+    assert abs(iterations["numba"] - iterations["numpy"]) <= 1
 
 
 @pytest.mark.parametrize("bs", [2, 3, 6])
@@ -255,7 +265,7 @@ def test_backward_sweep_matches_pyamg_and_the_reversed_forward_sweep(bs):
 
     S = _random_bsr(40, 40, (bs, bs), 0.15, 5)
     A = (S + S.T + 40 * bs * sp.eye(40 * bs)).tobsr(blocksize=(bs, bs))  # block diagonally dominant
-    D, Dinv = _kernels.block_diagonal_inverse(A, "scipy")
+    D, Dinv = _kernels.block_diagonal_inverse(A, "numpy")
     rng = np.random.default_rng(bs)
     b, x0 = rng.standard_normal((2, A.shape[0]))
     expected = x0.copy()
@@ -279,7 +289,7 @@ def test_backward_sweep_matches_pyamg_and_the_reversed_forward_sweep(bs):
 def test_bsr_operator_matches_scipy(R, C):
     """The compiled matrix-vector product equals scipy's to round-off (every specialised block shape and the
     generic kernel); 2-D operands, other dtypes and wrong lengths go through scipy (which checks them);
-    ``kernels="scipy"`` and non-BSR matrices keep the matrix."""
+    ``kernels="numpy"`` and non-BSR matrices keep the matrix."""
     A = _random_bsr(30, 25, (R, C), 0.2, 6)
     op = _kernels.bsr_operator(A, "numba")
     assert isinstance(op, _kernels.BsrOperator) and op.shape == A.shape
@@ -292,7 +302,7 @@ def test_bsr_operator_matches_scipy(R, C):
     np.testing.assert_array_equal(op @ x.astype(np.float32), A @ x.astype(np.float32))
     with pytest.raises(ValueError):
         op @ np.ones(A.shape[1] + 1)
-    assert _kernels.bsr_operator(A, "scipy") is A
+    assert _kernels.bsr_operator(A, "numpy") is A
     C_ = A.tocsr()
     assert _kernels.bsr_operator(C_, "numba") is C_
 
@@ -306,17 +316,17 @@ def test_lanczos_and_krylov_products_use_the_compiled_kernel(solver):
     from springsim.linsolve._sa import lanczos_rho
 
     M, _, A = _cloth_system()
-    D, Dinv = _kernels.block_diagonal_inverse(M, "scipy")
-    rho = {k: lanczos_rho(M, D, Dinv, steps=12, kernels=k) for k in ("numba", "scipy")}
-    assert rho["numba"] == pytest.approx(rho["scipy"], rel=1e-12)
+    D, Dinv = _kernels.block_diagonal_inverse(M, "numpy")
+    rho = {k: lanczos_rho(M, D, Dinv, steps=12, kernels=k) for k in ("numba", "numpy")}
+    assert rho["numba"] == pytest.approx(rho["numpy"], rel=1e-12)
     assert isinstance(AMGPreconditioner(kernels="numba").operator(A), _kernels.BsrOperator)
-    assert AMGPreconditioner(kernels="scipy").operator(A) is A.bsr
+    assert AMGPreconditioner(kernels="numpy").operator(A) is A.bsr
     b = np.random.default_rng(4).standard_normal(A.shape[0])
-    results = {k: make_linear_solver(solver, rtol=1e-10, kernels=k).solve(A, b) for k in ("numba", "scipy")}
+    results = {k: make_linear_solver(solver, rtol=1e-10, kernels=k).solve(A, b) for k in ("numba", "numpy")}
     for res in results.values():
         assert res.converged and res.fallback is None and res.residual <= 1e-10
-    assert abs(results["numba"].iterations - results["scipy"].iterations) <= 1
-    np.testing.assert_allclose(results["numba"].x, results["scipy"].x, rtol=0, atol=1e-8 * np.abs(b).max())
+    assert abs(results["numba"].iterations - results["numpy"].iterations) <= 1
+    np.testing.assert_allclose(results["numba"].x, results["numpy"].x, rtol=0, atol=1e-8 * np.abs(b).max())
 
 
 @pytest.mark.parametrize("R, K, upper", [(3, 3, False), (6, 3, False), (6, 6, False), (6, 3, True), (6, 6, True)])
@@ -353,7 +363,7 @@ def test_nearby_check_samples_large_matrices():
 
     rng = np.random.default_rng(9)
     old = rng.standard_normal((300_000, 3, 3))
-    pre = AMGPreconditioner(kernels="scipy", nearby=0.02)
+    pre = AMGPreconditioner(kernels="numpy", nearby=0.02)
     pre.ml = SimpleNamespace(levels=[SimpleNamespace(A=SimpleNamespace(data=old))])
     near = lambda data: pre._near(SimpleNamespace(bsr=SimpleNamespace(data=data)))  # noqa: E731
     assert near(1.01 * old)

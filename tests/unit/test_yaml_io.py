@@ -134,7 +134,7 @@ def test_solver_options_reach_integrator_options():
                    " linear_rtol: 1.0e-8, newton_tol: 1.0e-7, newton_maxiter: 9, time_rtol: 1.0e-3,"
                    " time_atol: 1.0e-6}\nparticles: [{pos: [0,0,0], mass: 1}]")
     assert s.config.integrator_options() == {"solver": "direct", "jacobian": "spd", "newton_tol": 1e-7,
-                                             "newton_maxiter": 9, "solver_options": {"rtol": 1e-8}}
+                                             "newton_maxiter": 9, "linear_rtol": 1e-8}
     assert (s.config.time_rtol, s.config.time_atol) == (1e-3, 1e-6)
     assert s.config.max_step is None
     capped = load_scene("solver: {type: tr_bdf2, timestep: 0.01, time_rtol: 1.0e-3, max_step: 0.004}\n"
@@ -345,10 +345,9 @@ def test_with_overrides_validates():
 
 
 def test_options_are_declared_once():
-    """Every SolverConfig field is a YAML key of the solver block, a run flag (where it declares one) and an
-    integrator or driver option: one declaration serves all three."""
+    """Every SolverConfig field (its groups' included) is a YAML key of the solver block, a run flag (where it
+    declares one) and an integrator or driver option: one declaration serves all three."""
     import argparse
-    import dataclasses
 
     from springsim.cli.run import add_run_options
     from springsim.run.options import SolverConfig
@@ -356,13 +355,13 @@ def test_options_are_declared_once():
     p = argparse.ArgumentParser()
     add_run_options(p)
     flags = {a.dest for a in p._actions}
-    for f in dataclasses.fields(SolverConfig):
+    for name, (_, f) in SolverConfig.declarations().items():
         m = f.metadata
-        assert m["help"] and m["kind"] in ("name", "float", "int", "options")
+        assert m["help"] and m["kind"] in ("name", "float", "int", "bool", "options")
         assert (f.name in flags) == bool(m["cli"])
     cfg = load_scene("solver: {type: bdf2, timestep: 0.01, residual_rtol: 1.0e-4, linear_rtol: 1.0e-7, "
                      "newton_maxiter: 7}\nparticles: [{pos: [0,0,0], mass: 1}]").config
-    assert cfg.integrator_options() == {"residual_rtol": 1e-4, "solver_options": {"rtol": 1e-7}, "newton_maxiter": 7}
+    assert cfg.integrator_options() == {"residual_rtol": 1e-4, "linear_rtol": 1e-7, "newton_maxiter": 7}
 
 
 def test_unused_options_are_named(recwarn):
