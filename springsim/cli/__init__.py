@@ -33,7 +33,18 @@ __all__ = ["COMMANDS", "Command", "main", "build_parser"]
 
 @dataclass(frozen=True)
 class Command:
-    """A subcommand: ``add_arguments(parser)`` declares its options, ``run(args)`` returns the exit status."""
+    """A subcommand: ``add_arguments(parser)`` declares its options, ``run(args)`` returns the exit status.
+
+    Parameters
+    ----------
+    add_arguments : callable
+        ``add_arguments(parser)`` adds the subcommand's options to its ``argparse`` parser.
+    run : callable
+        ``run(args)`` runs it on the parsed namespace and returns the exit status (0 ok, 1 a failed run, 2 bad
+        input).
+    help : str
+        One line for ``springsim --help`` (default: the first line of the command's docstring).
+    """
 
     add_arguments: Callable[[argparse.ArgumentParser], None]
     run: Callable[[argparse.Namespace], int]
@@ -68,7 +79,13 @@ class _Parser(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The top-level parser with one subparser per entry of :data:`COMMANDS`."""
+    """The top-level parser with one subparser per entry of :data:`COMMANDS`.
+
+    Returns
+    -------
+    argparse.ArgumentParser
+        ``springsim``'s parser; its usage errors are one line and exit 2.
+    """
     from .. import __version__
 
     parser = _Parser(prog="springsim", description="Large mass-spring systems, implicitly integrated.")
@@ -95,6 +112,17 @@ def main(argv: list[str] | None = None) -> int:
 
     Run as the program (``argv`` None), it first applies the allocator policy of
     :func:`springsim._runtime.alloc.retain_freed_memory` (off with ``SPRINGSIM_RETAIN_MEMORY=0``).
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        The arguments after the program name.
+
+    Returns
+    -------
+    int
+        The exit status: 0 success, 1 a run that ended with a failed step or blew up, 2 bad input or usage, 130
+        interrupted.
     """
     try:
         parser = build_parser()

@@ -9,7 +9,21 @@ __all__ = ["int_at_least", "positive_float"]
 
 
 def int_at_least(lo: int, hi: int | None = None):
-    """A converter accepting integers ``>= lo`` (and ``<= hi`` when given), e.g. ``type=int_at_least(1)``."""
+    """A converter accepting integers ``>= lo`` (and ``<= hi`` when given), e.g. ``type=int_at_least(1)``.
+
+    Parameters
+    ----------
+    lo : int
+        Smallest value accepted.
+    hi : int, optional
+        Largest value accepted.
+
+    Returns
+    -------
+    callable
+        ``convert(text) -> int``, raising ``argparse.ArgumentTypeError`` with a one-line message (also for texts
+        longer than 40 characters, which never reach Python's integer conversion).
+    """
 
     def convert(text: str) -> int:
         if len(text) > 40:  # also keeps Python's integer conversion away from huge digit strings
@@ -30,7 +44,23 @@ def int_at_least(lo: int, hi: int | None = None):
 
 
 def positive_float(text: str) -> float:
-    """A converter accepting finite numbers ``> 0`` (``type=positive_float``)."""
+    """A converter accepting finite numbers ``> 0`` (``type=positive_float``).
+
+    Parameters
+    ----------
+    text : str
+        The command-line value.
+
+    Returns
+    -------
+    float
+        The number.
+
+    Raises
+    ------
+    argparse.ArgumentTypeError
+        For a value that is not a finite number > 0.
+    """
     try:
         v = float(text)
     except ValueError:

@@ -22,7 +22,18 @@ __all__ = ["agree", "run_distributed", "abort_on_error"]
 
 def agree(error: str | None) -> str | None:
     """The first rank's error message (prefixed ``rank r:`` when not every rank had it), or None when every rank
-    is fine; collective over MPI's world communicator (a no-op outside ``mpiexec``)."""
+    is fine; collective over MPI's world communicator (a no-op outside ``mpiexec``).
+
+    Parameters
+    ----------
+    error : str or None
+        This rank's error message, None when it is fine.
+
+    Returns
+    -------
+    str or None
+        The message every rank reports, or None.
+    """
     from ..distributed import env_size
 
     if env_size() <= 1:
@@ -42,7 +53,13 @@ def agree(error: str | None) -> str | None:
 
 
 def abort_on_error(exc: BaseException) -> None:
-    """Print one line naming this rank and abort every rank of the job (status 1)."""
+    """Print one line naming this rank and abort every rank of the job (status 1).
+
+    Parameters
+    ----------
+    exc : BaseException
+        The error this rank cannot recover from; its type and message make the line.
+    """
     from ..distributed import env_rank, import_petsc
 
     print(f"springsim: error: rank {env_rank()}: {type(exc).__name__}: {' '.join(str(exc).split())}",
@@ -56,6 +73,21 @@ def run_distributed(args, scene, cfg) -> int:
 
     The run is the serial one (:func:`springsim.cli.runner.execute`: the same integrators, adaptive stepping and
     driver) over a :class:`~springsim.distributed.DistributedSystem`; rank 0 prints and saves.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The ``run`` command's arguments (``out``, ``frame_every``, ...).
+    scene : Scene
+        The loaded scene.
+    cfg : SolverConfig
+        Its run configuration, with the command line's overrides.
+
+    Returns
+    -------
+    int
+        The exit status: 0 success; 1 a failed step (without ``--keep-going``), a blow-up or an output that could
+        not be written (the frames then go to a rescue file); 130 or 143 when interrupted.
     """
     from ..distributed import env_rank, import_petsc
 

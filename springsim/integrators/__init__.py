@@ -62,7 +62,23 @@ INTEGRATORS: dict[str, type[Integrator]] = {
 
 
 def integrator_class(name: str) -> type[Integrator]:
-    """The registered integrator class ``name``; a SceneError naming ``integrator`` and the choices if unknown."""
+    """The registered integrator class ``name``.
+
+    Parameters
+    ----------
+    name : str
+        A key of :data:`INTEGRATORS`.
+
+    Returns
+    -------
+    type
+        The :class:`Integrator` subclass.
+
+    Raises
+    ------
+    SceneError
+        Naming ``integrator`` and the choices, for an unknown name.
+    """
     return registered(INTEGRATORS, name, param="integrator", what="integrator")
 
 
