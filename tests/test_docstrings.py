@@ -48,12 +48,6 @@ PACKAGE = "springsim"
 #: Files (paths from the repository root; a path ending in ``/`` is a directory) whose docstrings are completed by
 #: someone else and are not checked until then. When a file is complete, its entry goes (test_pending_is_pending).
 PENDING = {
-    # Being rewritten by the run-options / stage-solver engineer, who completes their docstrings in the rewrite
-    # (``integrators/_stage.py`` too, which is private and re-exports nothing: the rule does not reach it).
-    "springsim/run/options.py",
-    "springsim/integrators/_implicit.py",
-    "springsim/integrators/__init__.py",
-    "springsim/cli/",
     # Being edited by the distributed-backend engineer, who completes its docstrings.
     "springsim/distributed/system.py",
 }

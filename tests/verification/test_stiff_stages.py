@@ -96,6 +96,34 @@ def test_failed_step_is_retaken_in_substeps_then_reported():
     assert any("did not converge" in f for f in st.failures)
 
 
+def test_substeps_are_remembered_then_relaxed():
+    """After a step retaken in n substeps the next step starts in n substeps (recorded as remembered, nothing
+    retaken for it); after RETAKE_MEMORY steps that succeed at their first attempt, one level fewer; a failed step
+    is remembered at its last level; ``reset`` forgets."""
+    from springsim.integrators._implicit import RETAKE_MEMORY
+
+    model = benchmark_cloth(6, stiffness=1e8)
+    integ = make_integrator("implicit_euler", model, newton_maxiter=2, on_nonconvergence="ignore")
+    s0, s1 = model.state(), model.state()
+    first = integ.step(s0, s1, H)
+    n = first.extra["substeps"]
+    assert first.ok and first.extra["retaken"] and "remembered_substeps" not in first.extra
+    second = integ.step(s1, model.state(), H)
+    assert second.extra["remembered_substeps"] == n and second.extra["substeps"] >= n
+    integ.reset()
+    assert integ._start_level == 0
+    integ._remember(0, 2, True)  # the rule itself: a step retaken down to level 2 ...
+    for _ in range(RETAKE_MEMORY - 1):  # ... then clean steps at level 2 keep it ...
+        integ._remember(2, 2, True)
+        assert integ._start_level == 2
+    integ._remember(2, 2, True)
+    assert (integ._start_level, integ._clean_steps) == (1, 0)  # ... until RETAKE_MEMORY of them relax one level
+    integ._remember(1, 3, True)
+    assert integ._start_level == 3  # a deeper retake is remembered at once
+    integ._remember(3, 3, False)
+    assert integ._start_level == 3
+
+
 def test_tr_bdf2_step_that_creates_energy_is_retaken_as_implicit_euler():
     """A stiff pendulum (k = 1e8 N/m, m = 1 kg, h = 0.1 s: omega h = 1000) released 1 mm stretched: TR-BDF2's
     converged stages would lift the energy from 50 J to 100 J in the first step; the step is retaken as implicit
