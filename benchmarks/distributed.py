@@ -8,10 +8,15 @@ For each cloth size ``n`` (default 256 512; ``benchmark_cloth(n)``, linearized i
   :func:`springsim.distributed.simulate_distributed` (KSP CG + GAMG, PETSc options from ``--petsc-options``).
 
 ``--steps`` steps each (default 3; the first includes no extra set-up: every step builds its preconditioner).
-Reported per step (rank 0's wall time, averaged over the steps): total, force evaluation, assembly (the local
-COO scatter), insertion into the PETSc matrix (communication of ghost rows included), ghost exchange,
-preconditioner set-up, Krylov solve; linear iterations per step; peak resident memory of every rank
-(``ru_maxrss``); set-up before the first step (partition, pattern, preallocation). **Error**: the largest
+Reported per step (rank 0's wall time, averaged over the steps): total, its ratio to the serial row's
+(``ratio_to_serial``), rank 0's CPU time (``cpu_step_s``: less sensitive than wall time to other processes on a
+shared machine), force evaluation, assembly (the local COO scatter), insertion into the PETSc matrix
+(communication of ghost rows included), ghost exchange, preconditioner set-up, Krylov solve; linear solves and
+iterations per step, iterations per solve and their ratio to the serial path's; preconditioner builds, re-set-ups
+with a kept interpolation and stale kept ones (``-springsim_pc_reuse``); peak resident memory of every rank
+(``ru_maxrss``); set-up before the first step (partition, pattern, preallocation); the 1-minute load average
+before the configuration ran (``load``: state it with every figure; on a machine with c cores, a load near c
+before the run means the ranks shared their cores). **Error**: the largest
 distance [m] between the configuration's final positions and the serial path's, which both solve to the
 same linear tolerance (so it measures the agreement of the two solvers' 1e-6 answers, not an error
 against the ODE: that is the same for both, and ``benchmarks/frame_cost.py`` measures it).
@@ -42,9 +47,10 @@ from .common import RESULTS_DIR, fmt, machine_info, markdown_table, write_csv
 
 __all__ = ["COLUMNS", "main", "worker"]
 
-COLUMNS = ["n", "dofs", "config", "ranks", "steps", "step_s", "force_s", "assembly_s", "insert_s", "exchange_s",
-           "setup_s", "solve_s", "linear_its", "init_s", "max_rss_mb", "diff_to_serial_m", "max_linear_residual",
-           "failed_steps", "petsc_options"]
+COLUMNS = ["n", "dofs", "config", "ranks", "steps", "step_s", "ratio_to_serial", "cpu_step_s", "force_s", "assembly_s",
+           "insert_s", "exchange_s", "setup_s", "solve_s", "linear_solves", "linear_its", "its_per_solve",
+           "its_ratio_to_serial", "pc_builds", "pc_reuses", "pc_stale", "init_s", "max_rss_mb", "diff_to_serial_m",
+           "max_linear_residual", "failed_steps", "load", "petsc_options"]
 
 
 def worker(argv) -> int:
@@ -61,13 +67,16 @@ def worker(argv) -> int:
     model = benchmark_cloth(a.n)
     dt = 1.0 / 60.0
     t0 = time.perf_counter()
+    pc = dict(pc_builds=float("nan"), pc_reuses=float("nan"), pc_stale=float("nan"))
     if a.mode == "serial":
         from springsim import simulate
         from springsim.integrators import make_integrator
 
         integ = make_integrator("linearized_implicit", model, solver="auto", solver_options={"rtol": 1e-6})
         init = time.perf_counter() - t0
+        c0 = time.process_time()
         traj = simulate(model, integ, dt, a.steps, record=False)
+        cpu = time.process_time() - c0
         rank, rss = 0, [resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024]
         st = traj.stats
         parts = dict(force_s=sum(s.force_s for s in st), assembly_s=sum(s.assembly_s for s in st), insert_s=0.0,
@@ -81,18 +90,25 @@ def worker(argv) -> int:
 
         comm = MPI.COMM_WORLD
         rank, ranks = comm.Get_rank(), comm.Get_size()
+        c0 = time.process_time()
         traj = simulate_distributed(model, "linearized_implicit", dt, a.steps, record=False, linear_rtol=1e-6,
                                     petsc_options=a.petsc_options or None)
+        cpu = time.process_time() - c0
         rss = comm.gather(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, root=0)
         init, solver = float("nan"), f"petsc CG+GAMG, {ranks} rank(s)"
         if rank == 0:
             st = traj.stats
             parts = dict(traj.meta["timings"])
             init = traj.meta.get("init_s", float("nan"))
+            cpu -= traj.meta.get("init_cpu_s", 0.0)  # as the serial row: the steps only
+            pc = {f"pc_{k}": v for k, v in traj.meta.get("pc_stats", {}).items()}
     if rank == 0:
         steps = max(len(st), 1)
-        out = dict(step_s=traj.wall_s / steps, **{k: v / steps for k, v in parts.items()},
-                   linear_its=sum(s.linear_iterations for s in st) / steps, init_s=init, max_rss_mb=max(rss),
+        solves = sum(s.linear_solves for s in st)
+        out = dict(step_s=traj.wall_s / steps, cpu_step_s=cpu / steps, **{k: v / steps for k, v in parts.items()},
+                   linear_its=sum(s.linear_iterations for s in st) / steps, linear_solves=solves / steps,
+                   its_per_solve=sum(s.linear_iterations for s in st) / max(solves, 1), **pc,
+                   init_s=init, max_rss_mb=max(rss),
                    rss_mb=rss, ranks=ranks, max_linear_residual=max(s.linear_residual for s in st),
                    failed_steps=sum(not s.ok for s in st), config=solver)
         np.save(a.out + ".npy", traj.q[-1])
@@ -144,14 +160,21 @@ def main(argv=None) -> int:
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for n in a.sizes:
-            serial = None
+            serial = serial_row = None
             configs = ([] if a.no_serial else [("serial", 1)]) + [("petsc", r) for r in a.ranks]
             for mode, ranks in configs:
+                load = os.getloadavg()[0]  # 1-minute load average before the run (other processes' share)
                 r = run_config(mode, n, a.steps, ranks, a.petsc_options, Path(tmp))
                 if mode == "serial":
-                    serial = r["q"]
+                    serial, serial_row = r["q"], r
                 diff = float(np.abs(r["q"] - serial).max()) if serial is not None else float("nan")
-                row = dict(n=n, dofs=3 * (n * n - n), steps=a.steps, diff_to_serial_m=diff,
+                ratio = its_ratio = float("nan")
+                if serial_row is not None:
+                    ratio = r["step_s"] / serial_row["step_s"]
+                    if serial_row["its_per_solve"] > 0:  # 0 where the serial path solved directly
+                        its_ratio = r["its_per_solve"] / serial_row["its_per_solve"]
+                row = dict(n=n, dofs=3 * (n * n - n), steps=a.steps, diff_to_serial_m=diff, ratio_to_serial=ratio,
+                           its_ratio_to_serial=its_ratio, load=load,
                            petsc_options=a.petsc_options if mode == "petsc" else "",
                            **{k: r[k] for k in COLUMNS if k in r})
                 rows.append(row)

@@ -65,9 +65,11 @@ def simulate_distributed(model, integrator: str, dt: float, steps: int, *, comm=
     """Run ``steps`` steps of ``integrator`` on every rank of ``comm`` (default ``PETSc.COMM_WORLD``).
 
     :func:`make_distributed` then :func:`springsim.simulate`; the arguments are theirs. On the root rank the
-    trajectory's ``meta`` records ``backend: petsc``, the rank count and the set-up time, and ``meta["timings"]``
-    the system's time in exchange, forces, assembly, insertion, preconditioner set-up and solves; the other
-    ranks return None. The distributed system is destroyed at the end, whatever happens.
+    trajectory's ``meta`` records ``backend: petsc``, the rank count and the set-up time (wall ``init_s``, CPU
+    ``init_cpu_s``), ``meta["timings"]`` the system's time in exchange, forces, assembly, insertion, preconditioner
+    set-up and solves, and ``meta["pc_stats"]`` the preconditioner builds, re-set-ups with a kept interpolation and
+    kept ones found stale (:attr:`DistributedSystem.pc_stats`); the other ranks return None. The distributed system
+    is destroyed at the end, whatever happens.
 
     Parameters
     ----------
@@ -108,18 +110,21 @@ def simulate_distributed(model, integrator: str, dt: float, steps: int, *, comm=
     SimulationError
         On every rank, at the same step, for a blow-up or a solver error; on the root it carries the frames so far.
     """
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     integ = make_distributed(model, integrator, comm=comm, linear_rtol=linear_rtol, linear_maxiter=linear_maxiter,
                              petsc_options=petsc_options, partitioner=partitioner, **options)
-    init_s = time.perf_counter() - t0
+    init_s, init_cpu_s = time.perf_counter() - t0, time.process_time() - c0
     system = integ.system
     try:
         traj = simulate(model, integ, dt, steps, frame_every=frame_every, record=record, progress=progress,
                         check_energy=check_energy)
     finally:
         timings = {k: float(v) for k, v in system.timings.items()}
+        pc_stats = dict(system.pc_stats)
         system.destroy()
     if traj is not None:
         traj.meta["init_s"] = init_s
+        traj.meta["init_cpu_s"] = init_cpu_s
         traj.meta["timings"] = timings
+        traj.meta["pc_stats"] = pc_stats
     return traj

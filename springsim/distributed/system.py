@@ -16,13 +16,21 @@ vectors and the matrix have block size 3.
   with ``MatSetValuesBlockedLocal`` through the local-to-global map, adding; PETSc sends the ghost rows to
   their owners during assembly. The matrix is preallocated exactly, once, from the global pair lists, and
   a new nonzero is an error.
-* **Solve** (:meth:`DistributedSystem.solve`): a new KSP per assembled matrix (a kept GAMG preconditioner
-  re-set-up on new values diverged on the benchmark cloth), CG with GAMG by default (GMRES when the matrix
-  is not symmetric), the rigid-body modes at the current positions as GAMG's near-null space, then
+* **Solve** (:meth:`DistributedSystem.solve`): CG with GAMG by default (GMRES when the matrix is not
+  symmetric), the rigid-body modes at the current positions as GAMG's near-null space, then
   ``setFromOptions``, so every ``-ksp_*``/``-pc_*`` option (command line, ``PETSC_OPTIONS``,
-  ``solver.petsc_options``) overrides the defaults. The result is checked against the true residual; a
-  miss is retried once with GMRES and five times the iteration limit from the first attempt's iterate,
-  and reported if that misses too (:class:`~springsim.linsolve.LinearSolveResult` contract).
+  ``solver.petsc_options``) overrides the defaults. The finest level is smoothed by one symmetric SOR
+  (Gauss-Seidel) sweep instead of GAMG's Chebyshev/Jacobi (:data:`SPRINGSIM_OPTIONS`); coarse levels keep
+  Chebyshev/Jacobi, because GAMG's singleton aggregates leave zero rows there, on which SOR and point-block
+  Jacobi divide by zero. A new KSP and preconditioner for every matrix by default; with
+  ``-springsim_pc_reuse k`` the KSP is kept for up to ``k`` matrices, re-set-up on each new one with GAMG's
+  interpolation kept (PETSc's ``-pc_gamg_reuse_interpolation``, on by default: only the Galerkin coarse
+  operators and the smoothers are recomputed). The result is checked against the true residual. A kept
+  preconditioner gets ``2 * baseline + 4`` iterations (``baseline``: the fresh solve's count); a miss builds a
+  fresh preconditioner and continues from the iterate reached. A miss with a fresh preconditioner is retried
+  once with GMRES (fresh again) and five times the iteration limit from that iterate, and reported if that
+  misses too (:class:`~springsim.linsolve.LinearSolveResult` contract). The measurements behind these
+  choices: ``benchmarks/notes/2026-12-05-petsc-gamg.md``.
 """
 
 from __future__ import annotations
@@ -41,7 +49,7 @@ from ..system import System
 from ._petsc import import_petsc
 from .partition import PARTITIONERS, LocalPart, contiguous_offsets, pair_families, partition, system_order
 
-__all__ = ["DistributedSystem", "GAMG_DEFAULTS", "graph_partition", "owned_row_pattern"]
+__all__ = ["DistributedSystem", "GAMG_DEFAULTS", "SPRINGSIM_OPTIONS", "graph_partition", "owned_row_pattern"]
 
 #: PETSc options springsim sets unless given (``--petsc-options``, ``PETSC_OPTIONS``, the command line).
 #: GAMG's Chebyshev smoothers scale an estimate of the largest eigenvalue of each level by a safety factor
@@ -50,6 +58,23 @@ __all__ = ["DistributedSystem", "GAMG_DEFAULTS", "graph_partition", "owned_row_p
 #: retry needed 1,500 iterations); 1.3 gave 1, 16 and 15 CG iterations on the first three steps
 #: (docs/distributed.md, "GAMG settings").
 GAMG_DEFAULTS = {"mg_levels_ksp_chebyshev_esteig": "0,0.1,0,1.3"}
+
+#: springsim's own options, read from PETSc's options database like the others (so ``--petsc-options``,
+#: ``solver.petsc_options`` and ``PETSC_OPTIONS`` set them), with their defaults:
+#:
+#: * ``-springsim_fine_smoother``: ``sor`` (one Richardson iteration of PETSc's local symmetric SOR on GAMG's
+#:   finest level, the block Gauss-Seidel sweep pair of the serial AMG in point form) or ``gamg`` (GAMG's own
+#:   Chebyshev/Jacobi). Ignored when a ``-mg_levels_ksp_type`` or ``-mg_levels_pc_type`` option is set, or with
+#:   another ``-pc_type``. On the benchmark cloth (n = 256, linearized implicit Euler) it cuts the CG
+#:   iterations per solve from 32-72 to 21-24 at the same cost per iteration.
+#: * ``-springsim_pc_reuse``: ``k``, keep the KSP and GAMG's interpolation for up to ``k`` matrices (1: a fresh
+#:   preconditioner for every matrix). Off by default: on the falling benchmark cloth the kept interpolation
+#:   needs 1.2-1.5x the iterations on the next step, which about cancels the set-up it saves.
+SPRINGSIM_OPTIONS = {"springsim_fine_smoother": "sor", "springsim_pc_reuse": "1"}
+
+#: A solve with a kept preconditioner may take ``REUSE_FACTOR * baseline + REUSE_SLACK`` iterations (``baseline``:
+#: the count of the solve that built it) before a fresh one is built (the serial AMG's staleness rule).
+REUSE_FACTOR, REUSE_SLACK = 2.0, 4
 
 
 def owned_row_pattern(model, lo: int, hi: int, order: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -193,6 +218,22 @@ class DistributedSystem(System):
         for name, value in GAMG_DEFAULTS.items():  # only where no source (flags, PETSC_OPTIONS) set them
             if not opts.hasName(name):
                 opts[name] = value
+        self.fine_smoother = opts.getString("springsim_fine_smoother", SPRINGSIM_OPTIONS["springsim_fine_smoother"])
+        if self.fine_smoother not in ("sor", "gamg"):
+            raise SceneError("petsc_options", f"-springsim_fine_smoother must be sor or gamg, got "
+                                              f"{self.fine_smoother!r:.40}")
+        try:
+            self.pc_reuse = int(opts.getString("springsim_pc_reuse", SPRINGSIM_OPTIONS["springsim_pc_reuse"]))
+        except ValueError:
+            self.pc_reuse = 0
+        if self.pc_reuse < 1:
+            raise SceneError("petsc_options", f"-springsim_pc_reuse must be an integer >= 1, got "
+                                              f"{opts.getString('springsim_pc_reuse')!r:.40}")
+        #: the user set a level smoother: the finest level keeps it
+        self._user_smoother = any(opts.hasName(k) for k in ("mg_levels_ksp_type", "mg_levels_pc_type"))
+        self._kept = None  # (ksp, ksp type, baseline iterations, solves served, user max_it) of a kept KSP
+        #: preconditioner builds, re-set-ups with a kept interpolation, and kept ones found stale
+        self.pc_stats = dict(builds=0, reuses=0, stale=0)
 
         # local arrays (owned, ghosts, fixed); the fixed rows are constant
         self.q_loc = np.array(model.particle_q[p.local_particles])
@@ -447,6 +488,23 @@ class DistributedSystem(System):
         ksp.setFromOptions()
         return ksp
 
+    def _set_fine_smoother(self, ksp) -> None:
+        """After ``ksp.setUp()``: one local symmetric SOR sweep as the finest level's smoother (see
+        :data:`SPRINGSIM_OPTIONS`), unless the user chose smoothers or another preconditioner."""
+        pc = ksp.getPC()
+        if self.fine_smoother != "sor" or self._user_smoother or pc.getType() != "gamg":
+            return
+        levels = pc.getMGLevels()
+        if levels < 2:
+            return
+        fine = pc.getMGSmoother(levels - 1)
+        opts, name = self.PETSc.Options(), f"mg_levels_{levels - 1}_"
+        if opts.hasName(name + "ksp_type") or opts.hasName(name + "pc_type"):
+            return
+        fine.setType("richardson")
+        fine.getPC().setType("sor")
+        fine.setTolerances(max_it=1)
+
     def _near_null_space(self):
         coords = self.x.duplicate()
         coords.array[:] = np.asarray(self._positions).ravel()
@@ -454,48 +512,86 @@ class DistributedSystem(System):
         self.A.setNearNullSpace(ns)
         return ns
 
+    def _drop_kept(self) -> None:
+        if self._kept is not None:
+            self._kept[0].destroy()
+            self._kept = None
+
     def solve(self, A, rhs_own: np.ndarray, *, x0: np.ndarray | None = None,
               rtol: float | None = None) -> LinearSolveResult:
         """Solve ``A x = rhs`` (``A`` the last assembled matrix; DOF vectors of the owned particles) to the relative
-        residual ``rtol`` (default :attr:`rtol`); see the module docstring for the defaults, checks and retry."""
+        residual ``rtol`` (default :attr:`rtol`); see the module docstring for the defaults, checks and retries."""
         rtol = self.rtol if rtol is None else float(rtol)
         b, x = self.b, self.x
         b.array[:] = rhs_own.ravel()
         bn = b.norm()
         if bn == 0.0:
             return LinearSolveResult(np.zeros(rhs_own.size), True, 0, 0.0, "petsc")
-        ns = self._near_null_space()
         first = self.ksp_type or ("cg" if self.symmetric else "gmres")
-        attempts = [(first, self.maxiter), ("gmres", 5 * self.maxiter)]
+        kept = self._kept
+        reuse = kept is not None and kept[1] == first and kept[3] < self.pc_reuse
+        if not reuse:
+            self._drop_kept()
+        # (kept?, Krylov method, iteration limit): a kept preconditioner first, then fresh ones
+        attempts = ([(True, first, 0)] if reuse else []) + [(False, first, self.maxiter),
+                                                           (False, "gmres", 5 * self.maxiter)]
         its, setup, solve = 0, 0.0, 0.0
         fallback, method, rel, reason = None, "", float("inf"), 0
         target = max(rtol, self.atol / bn)
-        for k, (kind, maxiter) in enumerate(attempts):
+        ns = None
+        for k, (use_kept, kind, maxiter) in enumerate(attempts):
             if k == 0:
                 x.array[:] = 0.0 if x0 is None else np.asarray(x0).ravel()
             t0 = time.perf_counter()
-            ksp = self._ksp(kind, maxiter, x0_nonzero=(k > 0 or x0 is not None), rtol=rtol)
+            if use_kept:
+                ksp, _, baseline, served, user_max = kept
+                cap = min(int(REUSE_FACTOR * baseline + REUSE_SLACK), user_max)
+                ksp.setTolerances(rtol=rtol, atol=self.atol, max_it=cap)
+                ksp.setInitialGuessNonzero(x0 is not None)
+                ksp.setOperators(self.A)  # new values: GAMG recomputes coarse operators and smoothers
+                self.pc_stats["reuses"] += 1
+            else:
+                self._drop_kept()
+                if ns is None:
+                    ns = self._near_null_space()
+                ksp = self._ksp(kind, maxiter, x0_nonzero=(k > 0 or x0 is not None), rtol=rtol)
+                self.pc_stats["builds"] += 1
             ksp.setUp()
+            if not use_kept:
+                self._set_fine_smoother(ksp)
+                ksp.setUp()
             t1 = time.perf_counter()
             ksp.solve(b, x)
             t2 = time.perf_counter()
             setup += t1 - t0
             solve += t2 - t1
-            its += ksp.getIterationNumber()
+            k_its = ksp.getIterationNumber()
+            its += k_its
             reason = int(ksp.getConvergedReason())
             method = f"petsc {ksp.getType()}+{ksp.getPC().getType()}"
-            k_its = ksp.getIterationNumber()
-            ksp.destroy()
             self.A.mult(x, self.w)
             self.w.aypx(-1.0, b)              # w = b - A x
             rel = self.w.norm() / bn
             # 1 % slack: Krylov recurrences track the true residual only to round-off
-            if reason > 0 and np.isfinite(rel) and rel <= 1.01 * target:
+            ok = reason > 0 and np.isfinite(rel) and rel <= 1.01 * target
+            if use_kept:
+                if ok:
+                    kept[3] += 1
+                    break
+                self.pc_stats["stale"] += 1  # a fresh preconditioner continues from the iterate
+                self._drop_kept()
+                continue
+            if ok and self.pc_reuse > 1 and kind == first:
+                self._kept = [ksp, kind, max(k_its, 1), 1, ksp.getTolerances()[3]]
+            else:
+                ksp.destroy()
+            if ok:
                 break
-            if k == 0:
+            if fallback is None:
                 fallback = (f"{method}: {'not converged' if reason <= 0 else 'true residual above tolerance'} "
-                    f"(reason {reason}, relative residual {rel:.2e} after {k_its} iterations)")
-        ns.destroy()
+                            f"(reason {reason}, relative residual {rel:.2e} after {k_its} iterations)")
+        if ns is not None:
+            ns.destroy()
         self.timings["setup_s"] += setup
         self.timings["solve_s"] += solve
         ok = reason > 0 and np.isfinite(rel) and rel <= 1.01 * target
@@ -537,5 +633,6 @@ class DistributedSystem(System):
         return sp.csr_matrix((v, (r, c)), shape=(n, n))
 
     def destroy(self) -> None:
+        self._drop_kept()
         for obj in (self.A, self.x, self.b, self.w, self.loc, self.scatter, self.lgmap):
             obj.destroy()

@@ -135,6 +135,81 @@ def solver_failure(scene):
     return 0
 
 
+def pc_reuse(scene, out):
+    """The preconditioner options of ``DistributedSystem`` on ``scene`` (every rank; rank 0 writes ``out``, a JSON):
+    bad values are refused; the finest GAMG level gets SOR unless the user chose smoothers; a kept preconditioner
+    serves the same matrix, and on a much stiffer one it goes stale and a fresh one (CG, not the GMRES escalation)
+    gives the answer to the tolerance."""
+    import json
+
+    from petsc4py import PETSc
+
+    from springsim.distributed import env_rank
+    from springsim.distributed.system import DistributedSystem
+    from springsim.errors import SceneError
+
+    from .scenes import scene as make
+
+    opts = PETSc.Options()
+
+    def clear():
+        for name in ("springsim_pc_reuse", "springsim_fine_smoother", "mg_levels_pc_type"):
+            if opts.hasName(name):
+                opts.delValue(name)
+
+    model = make(scene)
+    report = {}
+    for bad in ("-springsim_pc_reuse 0", "-springsim_pc_reuse x", "-springsim_fine_smoother ilu"):
+        try:
+            DistributedSystem(model, petsc_options=bad)
+            report[bad] = "accepted"
+        except SceneError as e:
+            report[bad] = str(e)
+        clear()
+
+    def fine_smoother(options):
+        s = DistributedSystem(model, rtol=1e-8, petsc_options=options + " -springsim_pc_reuse 2")
+        q, v = s.local_state(model.particle_q, model.particle_qd)
+        A = s.assemble(q, v, 1e-4, 1e-2, "spd")
+        assert s.solve(A, np.ones(3 * s.part.n_own)).converged
+        pc = s._kept[0].getPC()
+        fine = pc.getMGSmoother(pc.getMGLevels() - 1)
+        kind = f"{fine.getType()}+{fine.getPC().getType()}"
+        s.destroy()
+        clear()
+        return kind
+
+    report["fine_default"] = fine_smoother("")
+    report["fine_gamg"] = fine_smoother("-springsim_fine_smoother gamg")
+    report["fine_user"] = fine_smoother("-mg_levels_pc_type jacobi")
+
+    rtol = 1e-8
+    s = DistributedSystem(model, rtol=rtol, petsc_options="-springsim_pc_reuse 3")
+    q, v = s.local_state(model.particle_q, model.particle_qd)
+    rhs = np.ones(3 * s.part.n_own)
+
+    def true_residual(A, x):
+        r = rhs - A @ x
+        return np.sqrt(s.sum(r @ r)) / np.sqrt(s.sum(rhs @ rhs))
+
+    stats = []
+    A = s.assemble(q, v, 1e-8, 1e-4, "spd")  # nearly the mass matrix: a few iterations
+    for _ in range(2):  # built, then kept for the same matrix
+        res = s.solve(A, rhs)
+        stats.append(dict(s.pc_stats, ok=res.converged, its=res.iterations, method=res.method,
+                          residual=true_residual(A, res.x)))
+    A = s.assemble(q, v, 0.1 ** 2, 0.1, "spd")  # much stiffer: the kept preconditioner goes stale
+    res = s.solve(A, rhs)
+    stats.append(dict(s.pc_stats, ok=res.converged, its=res.iterations, method=res.method, residual=true_residual(A, res.x),
+                      fallback=res.fallback))
+    s.destroy()
+    report["solves"] = stats
+    if env_rank() == 0:
+        with open(out, "w") as fh:
+            json.dump(report, fh)
+    return 0
+
+
 if __name__ == "__main__":
     case, *args = sys.argv[1:]
     sys.exit(globals()[case](*args))

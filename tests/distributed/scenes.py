@@ -57,6 +57,8 @@ def shuffled_cloth(n: int = 12, seed: int = 5):
 def scene(name: str):
     if name == "cloth":
         return benchmark_cloth(8)
+    if name == "cloth32":  # big enough for a multi-level GAMG hierarchy
+        return benchmark_cloth(32)
     if name == "shuffled_cloth":
         return shuffled_cloth()
     if name == "irregular":

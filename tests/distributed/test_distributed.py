@@ -344,6 +344,31 @@ def test_mpi_without_petsc_backend_is_refused():
 
 
 @needs_petsc
+@pytest.mark.parametrize("ranks", [1, 2])
+def test_preconditioner_options_and_reuse(ranks, tmp_path):
+    """``-springsim_fine_smoother`` and ``-springsim_pc_reuse`` (springsim.distributed.system.SPRINGSIM_OPTIONS):
+    parsing, the finest level's smoother, and a kept preconditioner that goes stale rebuilt fresh (never a wrong
+    answer, and no GMRES escalation where a fresh CG + GAMG suffices)."""
+    import json
+
+    out = tmp_path / "reuse.json"
+    mpirun(ranks, "pc_reuse", "cloth32", str(out))
+    r = json.loads(out.read_text())
+    assert "-springsim_pc_reuse must be an integer >= 1, got '0'" in r["-springsim_pc_reuse 0"]
+    assert "-springsim_pc_reuse must be an integer >= 1, got 'x'" in r["-springsim_pc_reuse x"]
+    assert "-springsim_fine_smoother must be sor or gamg, got 'ilu'" in r["-springsim_fine_smoother ilu"]
+    assert r["fine_default"] == "richardson+sor"
+    assert r["fine_gamg"] == r["fine_user"] == "chebyshev+jacobi"
+    first, same, stiff = r["solves"]
+    assert first["builds"] == 1 and first["reuses"] == 0 and first["ok"]
+    assert same["builds"] == 1 and same["reuses"] == 1 and same["stale"] == 0 and same["ok"]
+    assert stiff["reuses"] == 2 and stiff["stale"] == 1 and stiff["builds"] == 2 and stiff["ok"]
+    assert stiff["method"] == "petsc cg+gamg" and stiff["fallback"] is None
+    for s in r["solves"]:
+        assert s["residual"] <= 1.01e-8
+
+
+@needs_petsc
 @pytest.mark.slow
 def test_distributed_benchmark_runs(tmp_path):
     """``python -m benchmarks distributed`` at a tiny size: its columns, and 1 and 2 ranks agree with the serial
