@@ -83,6 +83,22 @@ def owned_row_pattern(model, lo: int, hi: int, order: np.ndarray | None = None) 
 
     Row ``k`` holds ``k`` and every free particle paired with it in any pair list; it is symmetric, so each
     rank computes the exact pattern of its rows, entries other ranks send included, from the pair lists.
+
+    Parameters
+    ----------
+    model : Model
+        The whole model.
+    lo, hi : int
+        The block rows owned (system numbering, ``hi`` exclusive).
+    order : ndarray of int, optional
+        The free particles' renumbering of a graph partition (default: the serial order).
+
+    Returns
+    -------
+    indptr : ndarray of int, shape (hi - lo + 1,)
+        Row pointers.
+    cols : ndarray of int
+        Block column indices, sorted within each row.
     """
     free = system_order(model, order)
     F = free.size
@@ -116,7 +132,24 @@ def _scalar_csr(indptr: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, np.nd
 def graph_partition(model, comm, method: str) -> tuple[np.ndarray, np.ndarray]:
     """``(order, offsets)``: a partition of the free-particle graph (an edge per pair) into one part per rank by
     PETSc's ``MatPartitioning`` of type ``method``, as a renumbering of the free particles (part by part, the
-    serial order kept within a part) and the parts' row offsets. Collective over ``comm``."""
+    serial order kept within a part) and the parts' row offsets. Collective over ``comm``.
+
+    Parameters
+    ----------
+    model : Model
+        The whole model (on every rank).
+    comm : petsc4py Comm
+        The communicator; one part per rank.
+    method : str
+        A ``MatPartitioning`` type (``ptscotch``, ``parmetis``).
+
+    Returns
+    -------
+    order : ndarray of int, shape (F,)
+        The free particles (serial indices) in the partitioned order.
+    offsets : ndarray of int, shape (size + 1,)
+        Each part's first row in that order.
+    """
     PETSc, MPI = import_petsc()
     size, rank = comm.getSize(), comm.getRank()
     F = int(model.free_count)
@@ -285,8 +318,14 @@ class DistributedSystem(System):
 
     # -- options ------------------------------------------------------------------------------------------------
     def insert_options(self, options) -> None:
-        """Insert ``options`` (a string of ``-name value`` pairs, or a mapping name -> value) into PETSc's
-        options database."""
+        """Insert ``options`` into PETSc's options database.
+
+        Parameters
+        ----------
+        options : str or dict
+            A string of ``-name value`` pairs (``"-ksp_type gmres"``), or a mapping name -> value (a value of
+            None or True gives a flag).
+        """
         if isinstance(options, dict):
             text = " ".join(f"-{str(k).lstrip('-')} {'' if v is None or v is True else v}" for k, v in options.items())
         else:
@@ -344,7 +383,19 @@ class DistributedSystem(System):
 
     def exchange(self, q_own: np.ndarray, v_own: np.ndarray | None = None, *, geometry=None, q_start=None) -> None:
         """Fill the local positions and velocities (owned and ghosts) from the owned arrays of every rank; also
-        the local damping geometry and start positions when given."""
+        the local damping geometry and start positions when given. Collective.
+
+        Parameters
+        ----------
+        q_own : ndarray, shape (n_own, 3)
+            This rank's owned positions [m].
+        v_own : ndarray, shape (n_own, 3), optional
+            Its owned velocities [m/s].
+        geometry : ndarray, shape (n_own, 3), optional
+            Owned positions of the frozen damping geometry [m].
+        q_start : ndarray, shape (n_own, 3), optional
+            Owned start positions of an energy-momentum step [m].
+        """
         t0 = time.perf_counter()
         self._exchange_into(q_own, self.q_loc)
         if v_own is not None:
@@ -364,8 +415,24 @@ class DistributedSystem(System):
         return out
 
     def forces(self, q_own, v_own, out=None, *, damping_geometry=None, exchange: bool = True):
-        """Total force [N] on the owned particles (n_own, 3) at the global state whose owned parts are given
-        (``exchange=False``: the local arrays were filled from them already)."""
+        """Total force [N] on the owned particles at the global state whose owned parts are given. Collective.
+
+        Parameters
+        ----------
+        q_own, v_own : ndarray, shape (n_own, 3)
+            This rank's owned positions [m] and velocities [m/s].
+        out : ndarray, shape (n_own, 3), optional
+            Receives the force (default: a new array).
+        damping_geometry : ndarray, shape (n_own, 3), optional
+            Owned positions at which the dissipative terms take their directions.
+        exchange : bool
+            Exchange the ghosts first (False: the local arrays were filled from these arrays already).
+
+        Returns
+        -------
+        ndarray, shape (n_own, 3)
+            ``out``.
+        """
         if exchange:
             self.exchange(q_own, v_own, geometry=damping_geometry)
         t0 = time.perf_counter()
@@ -430,8 +497,26 @@ class DistributedSystem(System):
 
     # -- assembly --------------------------------------------------------------------------------------------------
     def assemble(self, q_own, v_own, a: float, b: float, mode: str, *, q_start=None, damping_geometry=None):
-        """``A = M - a dF/dq - b dF/dqd`` at the given state, into :attr:`A` (the PETSc matrix); returns an
-        operator on DOF vectors (``A @ x``) for it."""
+        """``A = M - a dF/dq - b dF/dqd`` at the given state, into :attr:`A` (the PETSc matrix). Collective.
+
+        Parameters
+        ----------
+        q_own, v_own : ndarray, shape (n_own, 3)
+            This rank's owned positions [m] and velocities [m/s].
+        a, b : float
+            Coefficients of the position and velocity Jacobians [s^2, s].
+        mode : str
+            Jacobian mode (:data:`springsim.forces.JACOBIAN_MODES`).
+        q_start : ndarray, shape (n_own, 3), optional
+            Owned start positions: the energy-momentum force's Jacobian over the step.
+        damping_geometry : ndarray, shape (n_own, 3), optional
+            Owned positions at which the dissipative terms take their geometry.
+
+        Returns
+        -------
+        operator
+            ``A @ x`` on this rank's DOF vectors (the solve uses :attr:`A` itself).
+        """
         self.exchange(q_own, v_own, geometry=damping_geometry, q_start=q_start)
         t0 = time.perf_counter()
         m = self.asm.assemble(self.q_loc, self.v_loc, a, b, mode, q_start=None if q_start is None else self.q0_loc,
@@ -452,6 +537,13 @@ class DistributedSystem(System):
         return _Operator(self)
 
     def linearize_at(self, q_own):
+        """Record the springs' geometry at this state for the ``mixed`` mode's next assembly. Collective.
+
+        Parameters
+        ----------
+        q_own : ndarray, shape (n_own, 3)
+            This rank's owned positions [m].
+        """
         self.exchange(q_own)
         self.asm.linearize_at(self.q_loc)
 
@@ -466,7 +558,18 @@ class DistributedSystem(System):
         The serial :meth:`~springsim.assembly.SystemAssembler.precision_loss` takes the largest entry of each
         3x3 diagonal block; for the positive semi-definite blocks of the ``spd`` mode that is a diagonal entry,
         so the two agree there (for the other modes this one can be smaller by the blocks' off-diagonal/diagonal
-        ratio)."""
+        ratio).
+
+        Parameters
+        ----------
+        A : object, optional
+            Ignored: the last assembled matrix is measured.
+
+        Returns
+        -------
+        float
+            The relative precision (0 for a matrix that holds the masses exactly).
+        """
         d = self.A.getDiagonal()
         local = 0.0
         if self.part.n_own:
@@ -519,8 +622,25 @@ class DistributedSystem(System):
 
     def solve(self, A, rhs_own: np.ndarray, *, x0: np.ndarray | None = None,
               rtol: float | None = None) -> LinearSolveResult:
-        """Solve ``A x = rhs`` (``A`` the last assembled matrix; DOF vectors of the owned particles) to the relative
-        residual ``rtol`` (default :attr:`rtol`); see the module docstring for the defaults, checks and retries."""
+        """Solve ``A x = rhs`` to the relative residual ``rtol``; see the module docstring for the defaults, checks
+        and retries. Collective.
+
+        Parameters
+        ----------
+        A : object
+            What :meth:`assemble` returned (the last assembled matrix is solved).
+        rhs_own : ndarray, shape (3 n_own,)
+            This rank's part of the right-hand side.
+        x0 : ndarray, shape (3 n_own,), optional
+            Initial guess.
+        rtol : float, optional
+            Relative tolerance on the true residual (default :attr:`rtol`).
+
+        Returns
+        -------
+        LinearSolveResult
+            This rank's part of the solution, with the iterations, residual, times and any retry or failure.
+        """
         rtol = self.rtol if rtol is None else float(rtol)
         b, x = self.b, self.x
         b.array[:] = rhs_own.ravel()
@@ -602,8 +722,21 @@ class DistributedSystem(System):
 
     # -- gathering -------------------------------------------------------------------------------------------------
     def gather_full(self, q_own: np.ndarray, v_own: np.ndarray, root: int = 0):
-        """Full (N, 3) positions and velocities on ``root`` (None elsewhere): the owned arrays of every rank in
-        rank order are the free particles in the system's order; fixed particles from the model."""
+        """Full positions and velocities on ``root``: the owned arrays of every rank in rank order are the free
+        particles in the system's order; fixed particles from the model. Collective.
+
+        Parameters
+        ----------
+        q_own, v_own : ndarray, shape (n_own, 3)
+            This rank's owned positions [m] and velocities [m/s].
+        root : int
+            The rank that receives them.
+
+        Returns
+        -------
+        q, v : ndarray, shape (N, 3), or None
+            On ``root``; None on the other ranks.
+        """
         counts = self.mpi.gather(3 * q_own.shape[0], root=root)
         out = []
         for own, init in ((q_own, self.model.particle_q), (v_own, None)):
@@ -619,7 +752,18 @@ class DistributedSystem(System):
         return out[0], out[1]
 
     def gather_matrix(self, root: int = 0):
-        """The assembled matrix as a scipy CSR on ``root`` (None elsewhere), for checks on small systems."""
+        """The assembled matrix as a scipy CSR on ``root``, for checks on small systems. Collective.
+
+        Parameters
+        ----------
+        root : int
+            The rank that receives it.
+
+        Returns
+        -------
+        scipy.sparse.csr_matrix or None
+            The matrix over all free DOFs (system order) on ``root``; None elsewhere.
+        """
         import scipy.sparse as sp
 
         indptr, indices, data = self.A.getValuesCSR()
@@ -633,6 +777,7 @@ class DistributedSystem(System):
         return sp.csr_matrix((v, (r, c)), shape=(n, n))
 
     def destroy(self) -> None:
+        """Free the PETSc objects (matrix, vectors, scatters, kept preconditioner); the system is unusable after."""
         self._drop_kept()
         for obj in (self.A, self.x, self.b, self.w, self.loc, self.scatter, self.lgmap):
             obj.destroy()
