@@ -4,9 +4,10 @@ For every size of ``--sizes``, stiffness of ``--ke`` (structural and shear sprin
 ``--damping`` [N s/m] and step of ``--inv-h`` (1/h, multiples of 60), each integrator of ``--integrators`` runs
 ``benchmark_cloth(n, stiffness=ke, damping=kd)`` from release for ``--frames`` frames of 1/60 s with its default
 options (minimize stages, the ``mixed`` Hessian, substep retakes). Per run: steps still failed after their
-retakes, steps retaken, Newton iterations per stage (mean and largest per step; TR-BDF2 has two stages a step),
-the largest structural stretch (spring length over rest length, over the frames), the largest rise of the total
-energy above its start (the undamped ODE conserves it, the damped one loses it) and CPU per frame. Writes
+retakes, steps retaken, steps taken in substeps (retaken, or started so by the substep memory), Newton iterations
+per stage (mean and largest per step; TR-BDF2 has two stages a step), the largest structural stretch (spring
+length over rest length, over the frames), the largest rise of the total energy above its start (the undamped ODE
+conserves it, the damped one loses it) and CPU per frame. Writes
 ``results/stiff_convergence.csv`` and ``.md``.
 
 Usage::
@@ -30,7 +31,7 @@ from .common import RESULTS_DIR, markdown_table, write_csv
 
 __all__ = ["COLUMNS", "STAGES", "run", "main"]
 
-COLUMNS = ["n", "ke", "kd", "inv_h", "integrator", "failed_steps", "retaken_steps", "newton_per_stage",
+COLUMNS = ["n", "ke", "kd", "inv_h", "integrator", "failed_steps", "retaken_steps", "substep_steps", "newton_per_stage",
            "max_newton_per_stage", "max_stretch", "max_energy_rise_J", "cpu_per_frame_s", "load"]
 #: Stage solves per step of each integrator (for "per stage")
 STAGES = {"tr_bdf2": 2}
@@ -55,7 +56,8 @@ def run(n: int, ke: float, kd: float, inv_h: int, name: str, frames: int, **opti
     stretch = max(float(np.max(np.linalg.norm(q[i] - q[j], axis=1) / model.spring_rest_length)) for q in traj.q)
     energy = total_energy(model, traj.q, traj.qd)
     return dict(n=n, ke=ke, kd=kd, inv_h=inv_h, integrator=name, failed_steps=sum(not s.ok for s in traj.stats),
-                retaken_steps=sum("substeps" in s.extra for s in traj.stats), newton_per_stage=float(its.mean()),
+                retaken_steps=sum("retaken" in s.extra for s in traj.stats),
+                substep_steps=sum("substeps" in s.extra for s in traj.stats), newton_per_stage=float(its.mean()),
                 max_newton_per_stage=float(its.max()), max_stretch=stretch,
                 max_energy_rise_J=float(energy.max() - energy[0]), cpu_per_frame_s=cpu,
                 load=round(os.getloadavg()[0], 2))

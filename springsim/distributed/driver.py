@@ -13,7 +13,8 @@ from __future__ import annotations
 
 import time
 
-from ..integrators import make_integrator
+from ..errors import SceneError
+from ..integrators import LinearSolveOptions, make_integrator
 from ..linsolve import DEFAULT_RTOL
 from ..run.driver import simulate
 from .system import DistributedSystem
@@ -21,9 +22,9 @@ from .system import DistributedSystem
 __all__ = ["simulate_distributed", "make_distributed"]
 
 
-def make_distributed(model, integrator: str, *, comm=None, linear_rtol: float = DEFAULT_RTOL,
+def make_distributed(model, integrator: str, *, comm=None, linear_rtol: float | None = None,
                      linear_maxiter: int = 1000, petsc_options=None, partitioner: str = "contiguous",
-                     force_kernels: str = "auto", **options):
+                     force_kernels: str = "auto", linear: LinearSolveOptions | None = None, **options):
     """The integrator ``integrator`` over a new :class:`DistributedSystem` of ``model`` (collective).
 
     Parameters
@@ -44,6 +45,9 @@ def make_distributed(model, integrator: str, *, comm=None, linear_rtol: float = 
         ``contiguous`` (default) or a graph partitioner of PETSc (``ptscotch``, ``parmetis``).
     force_kernels : {"auto", "numba", "numpy"}
         Compiled force passes or the pure numpy path.
+    linear : LinearSolveOptions, optional
+        The linear-solve group instead of ``linear_rtol``; its ``linear_solver`` must be unset (the system solves
+        with PETSc's KSP).
     **options
         The integrator's options (:func:`springsim.integrators.make_integrator`), except ``solver`` and
         ``solver_options``: the system solves with PETSc's KSP.
@@ -52,9 +56,25 @@ def make_distributed(model, integrator: str, *, comm=None, linear_rtol: float = 
     -------
     Integrator
         Its :attr:`~springsim.integrators.Integrator.system` is the distributed system.
+
+    Raises
+    ------
+    SceneError
+        For a ``linear`` group that names a solver, or a tolerance given twice with different values.
     """
-    system = DistributedSystem(model, comm, rtol=linear_rtol, maxiter=linear_maxiter, petsc_options=petsc_options,
-                               partitioner=partitioner, force_kernels=force_kernels)
+    if linear is not None:
+        given = linear.given()
+        if "linear_solver" in given:
+            raise SceneError("linear_solver", "the petsc backend solves with PETSc's KSP (choose it with "
+                                              "petsc_options); leave linear_solver unset")
+        if "linear_rtol" in given:
+            if linear_rtol is not None and linear_rtol != given["linear_rtol"]:
+                raise SceneError("linear_rtol", f"given twice: linear_rtol={linear_rtol!r:.60} and "
+                                                f"LinearSolveOptions(linear_rtol={given['linear_rtol']!r:.60})")
+            linear_rtol = given["linear_rtol"]
+    system = DistributedSystem(model, comm, rtol=DEFAULT_RTOL if linear_rtol is None else linear_rtol,
+                               maxiter=linear_maxiter, petsc_options=petsc_options, partitioner=partitioner,
+                               force_kernels=force_kernels)
     return make_integrator(integrator, model, system=system, **options)
 
 

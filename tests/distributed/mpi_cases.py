@@ -210,6 +210,35 @@ def pc_reuse(scene, out):
     return 0
 
 
+
+def linear_group(scene, out):
+    """``make_distributed`` with a ``LinearSolveOptions`` group: its tolerance reaches the KSP; a solver name or a
+    tolerance given twice with another value is refused (rank 0 writes ``out``, a JSON)."""
+    import json
+
+    from springsim.distributed import env_rank, make_distributed
+    from springsim.errors import SceneError
+    from springsim.integrators import LinearSolveOptions
+
+    from .scenes import scene as make
+
+    model = make(scene)
+    report = {}
+    integ = make_distributed(model, "implicit_euler", linear=LinearSolveOptions(linear_rtol=1e-9))
+    report["rtol"] = integ.system.linear_rtol
+    integ.system.destroy()
+    for name, kwargs in (("solver", dict(linear=LinearSolveOptions(linear_solver="direct"))),
+                         ("twice", dict(linear_rtol=1e-6, linear=LinearSolveOptions(linear_rtol=1e-9)))):
+        try:
+            make_distributed(model, "implicit_euler", **kwargs).system.destroy()
+            report[name] = "accepted"
+        except SceneError as e:
+            report[name] = str(e)
+    if env_rank() == 0:
+        with open(out, "w") as fh:
+            json.dump(report, fh)
+    return 0
+
 if __name__ == "__main__":
     case, *args = sys.argv[1:]
     sys.exit(globals()[case](*args))

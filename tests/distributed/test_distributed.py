@@ -369,6 +369,20 @@ def test_preconditioner_options_and_reuse(ranks, tmp_path):
 
 
 @needs_petsc
+def test_make_distributed_takes_the_linear_solve_group(tmp_path):
+    """``make_distributed(linear=LinearSolveOptions(...))``: the group's tolerance is the KSP's; a linear solver name
+    (the backend solves with PETSc's KSP) and a tolerance given twice with different values are refused."""
+    import json
+
+    out = tmp_path / "linear.json"
+    mpirun(2, "linear_group", "cloth", str(out))
+    r = json.loads(out.read_text())
+    assert r["rtol"] == 1e-9
+    assert r["solver"].startswith("linear_solver: the petsc backend solves with PETSc's KSP")
+    assert r["twice"].startswith("linear_rtol: given twice")
+
+
+@needs_petsc
 @pytest.mark.slow
 def test_distributed_benchmark_runs(tmp_path):
     """``python -m benchmarks distributed`` at a tiny size: its columns, and 1 and 2 ranks agree with the serial
