@@ -159,22 +159,7 @@ class IntegratorBDF2(ImplicitIntegrator):
 
     def advance(self, q, v, h, stats):
         """One BDF2 step, continuing the history when ``(q, v)`` is the last step's output (or retrying its
-        input), else an implicit Euler start step (module docstring); sets :attr:`error_estimate`.
-
-        Parameters
-        ----------
-        q, v : ndarray, shape (n, 3)
-            Positions [m] and velocities [m/s] at the start of the step (state arrays of the system).
-        h : float
-            Step size [s].
-        stats : StepStats
-            The step's statistics: iterations, solves and failures are added to it.
-
-        Returns
-        -------
-        q1, v1 : ndarray, shape (n, 3)
-            Positions [m] and velocities [m/s] at the end of the step (new arrays).
-        """
+        input), else an implicit Euler start step (module docstring); sets :attr:`error_estimate`."""
         hist = self.history.lookup(q, v)
         if hist is not None:
             q_prev, v_prev, h_prev, a_n = hist

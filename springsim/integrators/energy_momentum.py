@@ -159,23 +159,7 @@ class IntegratorEnergyMomentum(ImplicitIntegrator):
 
     def advance(self, q, v, h, stats):
         """One energy-momentum step; while :attr:`estimating`, two half steps and the error estimate from
-        the full one (step doubling, module docstring).
-
-        Parameters
-        ----------
-        q, v : ndarray, shape (n, 3)
-            Positions [m] and velocities [m/s] at the start of the step (state arrays of the system).
-        h : float
-            Step size [s].
-        stats : StepStats
-            The step's statistics: iterations, solves and failures are added to it.
-
-        Returns
-        -------
-        q1, v1 : ndarray, shape (n, 3)
-            Positions [m] and velocities [m/s] at the end of the step (new arrays); with step doubling, the
-            half steps' result.
-        """
+        the full one (step doubling, module docstring)."""
         if self.estimating:
             return self._doubled(q, v, h, stats)
         q1, v1, _ = self._substep(q, v, h, stats)

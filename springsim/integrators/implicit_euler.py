@@ -22,21 +22,6 @@ class IntegratorImplicitEuler(ImplicitIntegrator):
     name = "implicit_euler"
 
     def advance(self, q, v, h, stats):
-        """One implicit Euler step of size ``h`` from ``(q, v)``: one stage with ``c = h`` (module docstring).
-
-        Parameters
-        ----------
-        q, v : ndarray, shape (n, 3)
-            Positions [m] and velocities [m/s] at the start of the step (state arrays of the system).
-        h : float
-            Step size [s].
-        stats : StepStats
-            The step's statistics: iterations, solves and failures are added to it.
-
-        Returns
-        -------
-        q1, v1 : ndarray, shape (n, 3)
-            Positions [m] and velocities [m/s] at the end of the step (new arrays).
-        """
+        """One implicit Euler step of size ``h`` from ``(q, v)``: one stage with ``c = h`` (module docstring)."""
         q1, v1, _ = self.solve_stage(q, v, h, v, stats, guesses=self.predict(v, h))
         return q1, v1

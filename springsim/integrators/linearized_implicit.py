@@ -44,22 +44,7 @@ class IntegratorLinearizedImplicit(ImplicitIntegrator):
 
     def advance(self, q, v, h, stats):
         """One linearized implicit Euler step: one Newton iteration of the implicit Euler stage, and the energy
-        check (a step that creates energy fails in ``stats``).
-
-        Parameters
-        ----------
-        q, v : ndarray, shape (n, 3)
-            Positions [m] and velocities [m/s] at the start of the step (state arrays of the system).
-        h : float
-            Step size [s].
-        stats : StepStats
-            The step's statistics: iterations, solves and failures are added to it.
-
-        Returns
-        -------
-        q1, v1 : ndarray, shape (n, 3)
-            Positions [m] and velocities [m/s] at the end of the step (new arrays).
-        """
+        check (a step that creates energy fails in ``stats``)."""
         q1, v1, ok = self.solve_stage(q, v, h, v, stats, maxiter=1, converge=False, final_residual=False)
         gain = self.gained_energy(q, v, q1, v1) if ok else None
         if gain is not None:  # one unchecked linear step created energy: retaken in substeps

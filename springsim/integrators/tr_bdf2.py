@@ -67,23 +67,7 @@ class IntegratorTRBDF2(ImplicitIntegrator):
 
     def advance(self, q, v, h, stats):
         """One TR-BDF2 step: the trapezoidal stage to ``t + gamma h``, then the BDF2 stage to ``t + h`` (module
-        docstring); sets :attr:`error_estimate`.
-
-        Parameters
-        ----------
-        q, v : ndarray, shape (n, 3)
-            Positions [m] and velocities [m/s] at the start of the step (state arrays of the system).
-        h : float
-            Step size [s].
-        stats : StepStats
-            The step's statistics: iterations, solves and failures are added to it.
-
-        Returns
-        -------
-        q1, v1 : ndarray, shape (n, 3)
-            Positions [m] and velocities [m/s] at the end of the step (new arrays); the trapezoidal stage's
-            result when it failed (the step is then retaken).
-        """
+        docstring); sets :attr:`error_estimate`."""
         g = GAMMA
         self.error_estimate = None
         a_n = self.acceleration(q, v).copy()
