@@ -22,7 +22,7 @@ from .system import DistributedSystem
 __all__ = ["simulate_distributed", "make_distributed"]
 
 
-def make_distributed(model, integrator: str, *, comm=None, linear_rtol: float | None = None,
+def make_distributed(model, integrator: str, *, comm=None, linear_rtol: float = DEFAULT_RTOL,
                      linear_maxiter: int = 1000, petsc_options=None, partitioner: str = "contiguous",
                      force_kernels: str = "auto", linear: LinearSolveOptions | None = None, **options):
     """The integrator ``integrator`` over a new :class:`DistributedSystem` of ``model`` (collective).
@@ -46,8 +46,9 @@ def make_distributed(model, integrator: str, *, comm=None, linear_rtol: float | 
     force_kernels : {"auto", "numba", "numpy"}
         Compiled force passes or the pure numpy path.
     linear : LinearSolveOptions, optional
-        The linear-solve group instead of ``linear_rtol``; its ``linear_solver`` must be unset (the system solves
-        with PETSc's KSP).
+        The linear-solve group: its ``linear_rtol`` replaces the default of ``linear_rtol`` (a ``linear_rtol`` set
+        to another value as well is refused); its ``linear_solver`` must be unset (the system solves with PETSc's
+        KSP).
     **options
         The integrator's options (:func:`springsim.integrators.make_integrator`), except ``solver`` and
         ``solver_options``: the system solves with PETSc's KSP.
@@ -68,11 +69,11 @@ def make_distributed(model, integrator: str, *, comm=None, linear_rtol: float | 
             raise SceneError("linear_solver", "the petsc backend solves with PETSc's KSP (choose it with "
                                               "petsc_options); leave linear_solver unset")
         if "linear_rtol" in given:
-            if linear_rtol is not None and linear_rtol != given["linear_rtol"]:
+            if linear_rtol != DEFAULT_RTOL and linear_rtol != given["linear_rtol"]:
                 raise SceneError("linear_rtol", f"given twice: linear_rtol={linear_rtol!r:.60} and "
                                                 f"LinearSolveOptions(linear_rtol={given['linear_rtol']!r:.60})")
             linear_rtol = given["linear_rtol"]
-    system = DistributedSystem(model, comm, rtol=DEFAULT_RTOL if linear_rtol is None else linear_rtol,
+    system = DistributedSystem(model, comm, rtol=linear_rtol,
                                maxiter=linear_maxiter, petsc_options=petsc_options, partitioner=partitioner,
                                force_kernels=force_kernels)
     return make_integrator(integrator, model, system=system, **options)

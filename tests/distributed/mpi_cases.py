@@ -228,7 +228,7 @@ def linear_group(scene, out):
     report["rtol"] = integ.system.linear_rtol
     integ.system.destroy()
     for name, kwargs in (("solver", dict(linear=LinearSolveOptions(linear_solver="direct"))),
-                         ("twice", dict(linear_rtol=1e-6, linear=LinearSolveOptions(linear_rtol=1e-9)))):
+                         ("twice", dict(linear_rtol=1e-7, linear=LinearSolveOptions(linear_rtol=1e-9)))):
         try:
             make_distributed(model, "implicit_euler", **kwargs).system.destroy()
             report[name] = "accepted"
