@@ -30,7 +30,7 @@ vectors and the matrix have block size 3.
   fresh preconditioner and continues from the iterate reached. A miss with a fresh preconditioner is retried
   once with GMRES (fresh again) and five times the iteration limit from that iterate, and reported if that
   misses too (:class:`~springsim.linsolve.LinearSolveResult` contract). The measurements behind these
-  choices: ``benchmarks/notes/2026-12-05-petsc-gamg.md``.
+  choices: docs/distributed.md, "GAMG settings", and BENCHMARKS.md#distributed.
 """
 
 from __future__ import annotations
