@@ -37,8 +37,8 @@ from ._options import LinearSolveOptions
 from ._stage import (FORCING_RULES, STAGE_SOLVERS, NewtonOptions, StageForcing, StageSolver, backtrack, check_count,
                      forcing_term, record_linear_solve, report_stage)
 
-__all__ = ["ENERGY_GAIN", "RETAKE_MEMORY", "FORCING_RULES", "STAGE_SOLVERS", "ImplicitIntegrator", "StageForcing", "backtrack",
-           "forcing_term", "report_stage", "record_linear_solve"]
+__all__ = ["ENERGY_GAIN", "RETAKE_MEMORY", "FORCING_RULES", "STAGE_SOLVERS", "ImplicitIntegrator", "StageForcing",
+           "backtrack", "forcing_term", "report_stage", "record_linear_solve"]
 
 
 #: A step that lifts the energy of a conservative or damped scene above the run's by more than this fraction of the

@@ -119,8 +119,8 @@ from ..forces import JACOBIAN_MODES, PROJECTED_MODES
 from ._base import PRECISION_LOSS_LIMIT, StepStats
 from ._options import ByRule, DefaultRule, OptionGroup, option
 
-__all__ = ["STAGE_SOLVERS", "FORCING_RULES", "NewtonOptions", "StageOptions", "StageSolver", "StageForcing", "forcing_term",
-           "backtrack", "record_linear_solve", "report_stage", "check_count"]
+__all__ = ["STAGE_SOLVERS", "FORCING_RULES", "NewtonOptions", "StageOptions", "StageSolver", "StageForcing",
+           "forcing_term", "backtrack", "record_linear_solve", "report_stage", "check_count"]
 
 #: Rules of the stage solver (module docstring).
 STAGE_SOLVERS = ("minimize", "residual", "pa2")

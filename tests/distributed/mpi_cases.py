@@ -200,8 +200,8 @@ def pc_reuse(scene, out):
                           residual=true_residual(A, res.x)))
     A = s.assemble(q, v, 0.1 ** 2, 0.1, "spd")  # much stiffer: the kept preconditioner goes stale
     res = s.solve(A, rhs)
-    stats.append(dict(s.pc_stats, ok=res.converged, its=res.iterations, method=res.method, residual=true_residual(A, res.x),
-                      fallback=res.fallback))
+    stats.append(dict(s.pc_stats, ok=res.converged, its=res.iterations, method=res.method,
+                      residual=true_residual(A, res.x), fallback=res.fallback))
     s.destroy()
     report["solves"] = stats
     if env_rank() == 0:
