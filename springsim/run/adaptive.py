@@ -27,6 +27,12 @@ Failing at ``h_min``, or missing the tolerance there, raises :class:`~springsim.
 with the frames so far, as a fixed-step run does (:mod:`springsim.run.driver`): a step is never accepted
 with an error above the tolerance.
 
+The stages of implicit integrators stop at their ``force_rtol`` capped at ``NEWTON_SHARE`` (0.1) times
+``time_rtol`` (``time_atol`` when ``time_rtol`` is 0; never below ``NEWTON_FLOOR``, 1e-10; :attr:`~springsim.integrators._stage.StageSolver.force_rtol_cap`)
+for the run, so that the Newton error stays a fraction of the error the test accepts, as stiff ODE codes do
+(CVODE stops Newton at 0.1 of its error test, Hindmarsh et al. 2005): a step is judged on its truncation error,
+not on an unfinished solve.
+
 Output frames at the requested times come from cubic Hermite interpolation of ``q`` between
 the two step ends (values ``q``, slopes ``qd``); velocities are the derivative of that cubic.
 A frame time that coincides with a step end (within ``1e-12`` relative) takes that state
@@ -48,7 +54,13 @@ from ..progress import as_progress
 from .driver import RunRecorder, Trajectory
 from .options import ADAPTIVE_H_MIN
 
-__all__ = ["simulate_adaptive", "StepSizeController", "hermite_frame"]
+__all__ = ["simulate_adaptive", "StepSizeController", "hermite_frame", "NEWTON_SHARE", "NEWTON_FLOOR"]
+
+#: The implicit stages of an adaptive run stop at ``force_rtol`` capped at this share of ``time_rtol`` (of
+#: ``time_atol`` when ``time_rtol`` is 0): the Newton error below the error test (module docstring).
+NEWTON_SHARE = 0.1
+#: ... but never below this: a tighter force balance is round-off (the error test then fails on its own).
+NEWTON_FLOOR = 1e-10
 
 
 def hermite_frame(t0, q0, v0, t1, q1, v1, t):
@@ -406,6 +418,11 @@ def simulate_adaptive(model: Model, integrator: str | Integrator, t_end: float, 
     integrator.estimating = True  # restored when the run ends
     if retake:
         integrator.retake = False  # a failed step is retried smaller here, not retaken in substeps
+    stage = getattr(integrator, "stage", None)  # the stage solver of an implicit integrator
+    cap = None if stage is None else stage.force_rtol_cap
+    if stage is not None:  # the Newton error below the error test (restored when the run ends)
+        share = max(NEWTON_SHARE * float(time_rtol if time_rtol > 0 else time_atol), NEWTON_FLOOR)
+        stage.force_rtol_cap = share if cap is None else min(cap, share)
     try:
         with single_blas_thread():
             while fi < t_frames.size:
@@ -475,6 +492,8 @@ def simulate_adaptive(model: Model, integrator: str | Integrator, t_end: float, 
         integrator.estimating = estimating
         if retake:
             integrator.retake = True
+        if stage is not None:
+            stage.force_rtol_cap = cap
         guard.__exit__(None, None, None)
     return run.finish()
 

@@ -224,3 +224,22 @@ def test_step_size_controller_first_step_and_end_of_run():
     for lo, hi in ((0.0, 1.0), (0.2, 0.1), (-1.0, 1.0)):
         with pytest.raises(SceneError, match="h_min"):
             StepSizeController(2, h_min=lo, h_max=hi)
+
+
+def test_stage_tolerance_is_capped_by_the_time_tolerance():
+    """During an adaptive run the minimise stages stop at ``force_rtol`` capped at ``NEWTON_SHARE time_rtol`` (the
+    Newton error below the error test): every accepted step's force imbalance ratio is within 0.1 time_rtol (or
+    its round-off allowance), and the cap is lifted when the run ends."""
+    from springsim.run.adaptive import NEWTON_SHARE
+    from springsim.scene.gallery import benchmark_cloth
+
+    model = benchmark_cloth(5)
+    integ = make_integrator("tr_bdf2", model)
+    assert integ.options.force_rtol == 1e-3 and integ.stage.force_rtol_cap is None
+    tr = simulate_adaptive(model, integ, 0.1, time_rtol=1e-5, time_atol=1e-5)
+    assert tr.stats and all(s.newton_converged for s in tr.stats)
+    ratios = [s.residual_ratio for s in tr.stats if "roundoff_stops" not in s.extra]
+    assert ratios and max(ratios) <= NEWTON_SHARE * 1e-5 * 1.001
+    assert integ.stage.force_rtol_cap is None
+    fixed = simulate(model, integ, 0.01, 3)  # a fixed-step run after it: the option's own tolerance again
+    assert max(s.residual_ratio for s in fixed.stats) <= 1e-3

@@ -56,7 +56,7 @@ def test_minimize_stage_meets_the_gradient_criterion_at_its_result():
     """The implicit Euler step returned by a minimize stage balances its forces: the gradient of the incremental
     potential, recomputed here from the result (``grad E = M (v1 - v0)/h - F(q1, v1)`` with the damping along the
     directions of the predictor ``q0 + h v0``), is within the stage's own tolerance, ``force_rtol`` times the
-    forces it balances (1e-5 by default; damped 8 x 8 cloth, ke = 1e6, from a perturbed state)."""
+    forces it balances (1e-3 by default; damped 8 x 8 cloth, ke = 1e6, from a perturbed state)."""
     model = benchmark_cloth(8, stiffness=1e6, damping=2.0)
     rng = np.random.default_rng(2718)
     s0, s1 = model.state(), model.state()
@@ -75,22 +75,25 @@ def test_minimize_stage_meets_the_gradient_criterion_at_its_result():
     grad = (m * (v1 - v0) / H - f)[free]
     scale = np.linalg.norm((m * (v1 - v0))[free]) / H + np.linalg.norm(f[free]) + np.linalg.norm(
         (m * model.gravity_vector)[free])
-    assert np.linalg.norm(grad) <= 1e-5 * scale * 1.001
+    assert integ.options.force_rtol == 1e-3
+    assert np.linalg.norm(grad) <= integ.options.force_rtol * scale * 1.001
     assert np.linalg.norm(grad) == pytest.approx(st.extra["gradient_norm"], rel=1e-6, abs=1e-12)
 
 
 def test_failed_step_is_retaken_in_substeps_then_reported():
     """A step whose stage cannot converge within its limit (2 Newton iterations, ke = 1e8) is retaken in 2, 4, 8
     substeps, the first attempt that succeeds kept and the abandoned ones listed; with no retakes allowed the same
-    step is reported as failed, never passed off as converged."""
+    step is reported as failed, never passed off as converged (``force_rtol`` 1e-5: a stage 2 iterations cannot
+    finish)."""
     model = benchmark_cloth(6, stiffness=1e8)
     s0, s1 = model.state(), model.state()
-    retaking = make_integrator("implicit_euler", model, newton_maxiter=2, on_nonconvergence="ignore")
+    retaking = make_integrator("implicit_euler", model, newton_maxiter=2, force_rtol=1e-5, on_nonconvergence="ignore")
     st = retaking.step(s0, s1, H)
     assert st.ok and st.extra["substeps"] in (2, 4, 8) and st.extra["retaken"]
     assert "did not converge" in st.extra["retaken"][0]
     s2 = model.state()
-    single = make_integrator("implicit_euler", model, newton_maxiter=2, retake_halvings=0, on_nonconvergence="ignore")
+    single = make_integrator("implicit_euler", model, newton_maxiter=2, force_rtol=1e-5, retake_halvings=0,
+                             on_nonconvergence="ignore")
     st = single.step(s0, s2, H)
     assert not st.ok and not st.newton_converged and "substeps" not in st.extra
     assert any("did not converge" in f for f in st.failures)
@@ -103,7 +106,7 @@ def test_substeps_are_remembered_then_relaxed():
     from springsim.integrators._implicit import RETAKE_MEMORY
 
     model = benchmark_cloth(6, stiffness=1e8)
-    integ = make_integrator("implicit_euler", model, newton_maxiter=2, on_nonconvergence="ignore")
+    integ = make_integrator("implicit_euler", model, newton_maxiter=2, force_rtol=1e-5, on_nonconvergence="ignore")
     s0, s1 = model.state(), model.state()
     first = integ.step(s0, s1, H)
     n = first.extra["substeps"]
