@@ -80,6 +80,36 @@ def test_minimize_stage_meets_the_gradient_criterion_at_its_result():
     assert np.linalg.norm(grad) == pytest.approx(st.extra["gradient_norm"], rel=1e-6, abs=1e-12)
 
 
+def test_line_search_is_nonmonotone_over_five_iterates():
+    """The Armijo test of a minimise stage compares with the largest E of the last five iterates: on a stiff cloth
+    (6 x 6, ke = 1e8, four steps) some accepted iterates raise E (full steps through the curved valley of the turned
+    springs), yet none exceeds the largest of its five predecessors, and every stage converges."""
+    from springsim.integrators._stage import _NONMONOTONE
+
+    model = benchmark_cloth(6, stiffness=1e8)
+    integ = make_integrator("implicit_euler", model, retake_halvings=0)
+    s0, s1 = model.state(), model.state()
+    integ.stage.trace = []
+    rises = 0
+    for _ in range(4):
+        st = integ.step(s0, s1, H)
+        assert st.ok
+        s0, s1 = s1, s0
+    stages, stage = [], []
+    for it, _alpha, _g, _tol, E in integ.stage.trace:
+        if it == 0 and stage:  # a stage starts (its starting point's E)
+            stages.append(stage)
+            stage = []
+        stage.append(E)
+    stages.append(stage)
+    for E in stages:
+        for k in range(1, len(E)):
+            ref = max(E[max(0, k - _NONMONOTONE):k])
+            assert E[k] <= ref + 1e-9 * abs(ref)  # Armijo against the window's largest E (within E's round-off)
+            rises += E[k] > E[k - 1]
+    assert rises >= 1
+
+
 def test_failed_step_is_retaken_in_substeps_then_reported():
     """A step whose stage cannot converge within its limit (2 Newton iterations, ke = 1e8) is retaken in 2, 4, 8
     substeps, the first attempt that succeeds kept and the abandoned ones listed; with no retakes allowed the same
@@ -268,10 +298,12 @@ def test_minimize_linear_solves_are_no_tighter_than_the_stopping_rule_needs():
 
 @pytest.mark.parametrize("name", ["implicit_euler", "tr_bdf2"])
 def test_curved_steps_are_taken_on_very_stiff_cloth(name):
-    """At ke = 1e8 full Newton steps that turn springs are rejected by E and corrected along the springs' arcs
-    (the second-order correction): corrected steps occur, every step converges to the gradient criterion."""
+    """At ke = 1e8 full Newton steps that turn springs raise E; the nonmonotone search accepts most of them as they
+    are, and those above its window are corrected along the springs' arcs (the second-order correction: implicit
+    Euler's first step here). Every step converges to the gradient criterion."""
     model = benchmark_cloth(10, stiffness=1e8)
     traj = simulate(model, make_integrator(name, model, solver="direct"), H, 10)
     assert all(s.ok for s in traj.stats)
-    assert sum(s.extra.get("corrected_steps", 0) for s in traj.stats) > 0
+    if name == "implicit_euler":
+        assert sum(s.extra.get("corrected_steps", 0) for s in traj.stats) > 0
     assert all(s.extra["gradient_norm"] <= s.extra["gradient_tol"] for s in traj.stats)
