@@ -47,7 +47,8 @@ from ..forces import make_force_terms
 from ..linsolve import DEFAULT_RTOL, LinearSolveResult
 from ..system import System
 from ._petsc import import_petsc
-from .partition import PARTITIONERS, LocalPart, contiguous_offsets, pair_families, partition, system_order
+from .partition import PARTITIONERS, LocalPart, contiguous_offsets, pair_families, system_order
+from .scene import ScenePart, model_part
 
 __all__ = ["DistributedSystem", "GAMG_DEFAULTS", "SPRINGSIM_OPTIONS", "graph_partition", "owned_row_pattern"]
 
@@ -233,16 +234,26 @@ class DistributedSystem(System):
         if partitioner not in PARTITIONERS:
             raise SceneError("partitioner", f"must be one of {', '.join(PARTITIONERS)}, got {partitioner!r:.60}")
         order = offsets = None
-        if partitioner != "contiguous":
-            try:
-                order, offsets = graph_partition(model, self.comm, partitioner)
-            except PETSc.Error as e:
-                raise SceneError("partitioner", f"PETSc's MatPartitioning {partitioner!r} failed (error code "
-                                                f"{e.ierr}); is it in this PETSc build?") from None
-        self.part: LocalPart = partition(model, self.size, self.rank, offsets=offsets, order=order)
-        self.system_particles = system_order(model, order)
+        if isinstance(model, ScenePart):  # built per rank: no rank has the whole model
+            if partitioner != "contiguous":
+                raise SceneError("partitioner", f"{partitioner!r} needs the whole model on every rank; a scene "
+                                                f"built per rank is split into contiguous blocks")
+            scene = model
+        else:
+            if partitioner != "contiguous":
+                try:
+                    order, offsets = graph_partition(model, self.comm, partitioner)
+                except PETSc.Error as e:
+                    raise SceneError("partitioner", f"PETSc's MatPartitioning {partitioner!r} failed (error code "
+                                                    f"{e.ierr}); is it in this PETSc build?") from None
+            scene = model_part(model, self.size, self.rank, offsets=offsets, order=order)
+        #: This rank's share of the scene (:class:`~springsim.distributed.scene.ScenePart`).
+        self.scene = scene
+        #: Whether :attr:`model` is the whole Model (False: a :class:`~springsim.distributed.scene.ScenePart`).
+        self.whole_model = not isinstance(model, ScenePart)
+        self.part: LocalPart = scene.part
         p = self.part
-        self.free_count = int(model.free_count)
+        self.free_count = int(scene.free_count)
         self.rtol, self.atol, self.maxiter = float(rtol), float(atol), int(maxiter)
         self.ksp_type, self.pc_type = ksp_type, pc_type
         if petsc_options:
@@ -269,8 +280,8 @@ class DistributedSystem(System):
         self.pc_stats = dict(builds=0, reuses=0, stale=0)
 
         # local arrays (owned, ghosts, fixed); the fixed rows are constant
-        self.q_loc = np.array(model.particle_q[p.local_particles])
-        self.v_loc = np.array(model.particle_qd[p.local_particles])
+        self.q_loc = np.array(p.pair_model.particle_q)
+        self.v_loc = np.array(p.pair_model.particle_qd)
         self.v_loc[p.n_local_free:] = 0.0
         self.f_loc = np.zeros_like(self.q_loc)
         self.g_loc = np.array(self.q_loc)   # damping geometry (owned, ghosts; fixed rows constant)
@@ -278,7 +289,10 @@ class DistributedSystem(System):
         self.pair_terms = [t for t in make_force_terms(p.pair_model, kernels=force_kernels) if t.pairwise]
         self.particle_terms = [t for t in make_force_terms(p.particle_model, kernels=force_kernels) if not t.pairwise]
         self.terms = self.pair_terms + self.particle_terms
-        self.mass = np.array(model.particle_mass[p.local_particles[:p.n_own]])
+        self.mass = np.array(p.pair_model.particle_mass[:p.n_own])
+        #: per-particle terms over this rank's block of the fixed particles (their constant energy)
+        self.fixed_terms = [t for t in make_force_terms(scene.fixed_model, kernels="numpy", skip_fixed=False)
+                            if not t.pairwise]
         self.particle_mass = self.mass
         self.fixed = np.zeros(0, dtype=np.int64)  # no rank owns a fixed particle
         self.root = 0
@@ -303,7 +317,7 @@ class DistributedSystem(System):
         self.lgmap = PETSc.LGMap().create(p.local_to_free[:nlf].astype(PETSc.IntType), bsize=3, comm=self.comm)
 
         # the matrix, preallocated exactly from the global pattern of the owned rows
-        indptr, cols = owned_row_pattern(model, p.lo, p.hi, order)
+        indptr, cols = self._owned_row_pattern()
         sptr, scols = _scalar_csr(indptr, cols)
         A = PETSc.Mat().create(comm=self.comm)
         A.setSizes(((own3, F3), (own3, F3)), bsize=3)
@@ -315,6 +329,116 @@ class DistributedSystem(System):
         self._local_csr = None
         self.symmetric = True
         self.timings = dict(exchange_s=0.0, force_s=0.0, assembly_s=0.0, insert_s=0.0, setup_s=0.0, solve_s=0.0)
+        # what the root needs to gather frames: every rank's owned ids in system order, and the fixed particles
+        own_ids = self.mpi.gather(np.asarray(p.local_particles[:p.n_own], dtype=np.int64), root=self.root)
+        fixed = self.mpi.gather((scene.fixed_ids, np.asarray(scene.fixed_model.particle_q)), root=self.root)
+        #: On the root: the free particles' ids in the system's order (block row k first); None elsewhere.
+        self.system_particles = np.concatenate(own_ids) if self.is_root else None
+        self._fixed_ids = np.concatenate([f[0] for f in fixed]) if self.is_root else None
+        self._fixed_q = np.concatenate([f[1] for f in fixed]).reshape(-1, 3) if self.is_root else None
+        del own_ids, fixed
+
+    def _owned_row_pattern(self) -> tuple[np.ndarray, np.ndarray]:
+        """The block pattern ``(indptr, cols)`` of the owned rows (system numbering, columns sorted), from the local
+        pairs: the entries of ghost rows go to their owners (one all-to-all). Row ``k`` holds ``k`` and every free
+        particle paired with ``k`` (what :func:`owned_row_pattern` computes from the whole model). Collective."""
+        p = self.part
+        l2f = p.local_to_free
+        r, c = [], []
+        for term in pair_families(p.pair_model):
+            ij = l2f[p.pair_model.terms[term]["indices"]]
+            ij = ij[(ij[:, 0] >= 0) & (ij[:, 1] >= 0)]
+            r += [ij[:, 0], ij[:, 1]]
+            c += [ij[:, 1], ij[:, 0]]
+        rows = np.concatenate(r + [np.zeros(0, np.int64)]).astype(np.int64)
+        cols = np.concatenate(c + [np.zeros(0, np.int64)]).astype(np.int64)
+        dest = np.searchsorted(p.offsets, rows, side="right") - 1
+        by = np.argsort(dest, kind="stable")
+        rows, cols, dest = rows[by], cols[by], dest[by]
+        cuts = np.searchsorted(dest, np.arange(self.size + 1))
+        got = self.mpi.alltoall([(rows[cuts[k]:cuts[k + 1]], cols[cuts[k]:cuts[k + 1]]) for k in range(self.size)])
+        lo, hi, F = p.lo, p.hi, self.free_count
+        rows = np.concatenate([np.arange(lo, hi)] + [g[0] for g in got])
+        cols = np.concatenate([np.arange(lo, hi)] + [g[1] for g in got])
+        key = np.unique((rows - lo) * F + cols)
+        rows, cols = key // F, key % F
+        indptr = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=hi - lo))])
+        return indptr, cols
+
+    def initial_state(self):
+        """This rank's state arrays at the start: the owned particles' positions [m] and velocities [m/s] (copies).
+
+        Returns
+        -------
+        q, qd : ndarray, shape (n_own, 3)
+        """
+        m = self.part.particle_model
+        return np.array(m.particle_q, dtype=np.float64), np.array(m.particle_qd, dtype=np.float64)
+
+    def energy_start(self, q_own, qd_own) -> dict:
+        """What the energy bound needs of the whole scene at the start, summed over every rank (collective).
+
+        Pairs between two fixed particles are in no rank's part: their constant energy is left out.
+
+        Parameters
+        ----------
+        q_own, qd_own : ndarray, shape (n_own, 3)
+            This rank's owned positions [m] and velocities [m/s].
+
+        Returns
+        -------
+        dict
+            ``kinetic`` [J]; ``parts``: term name -> potential energy [J] (fixed particles included);
+            ``floor``: the sum of the finite potential floors [J]; ``unbounded``: names of the terms without one;
+            ``mass`` [kg] of every particle; ``extent`` [m], the diagonal of the bounding box of every particle;
+            ``fixed_unbounded`` [J], the unbounded terms' energy of the fixed particles.
+        """
+        self.exchange(q_own, qd_own)
+        n = self.part.n_own
+        fq = np.asarray(self.scene.fixed_model.particle_q)
+        parts, floors, fixed_unb = {}, {}, 0.0
+        for t, q in ([(t, self.q_loc) for t in self.pair_terms] + [(t, self.q_loc[:n]) for t in self.particle_terms]
+                     + [(t, fq) for t in self.fixed_terms]):
+            parts[t.name] = parts.get(t.name, 0.0) + float(t.potential_energy(q))
+            floors[t.name] = floors.get(t.name, 0.0) + float(t.potential_floor())
+            if q is fq and not np.isfinite(t.potential_floor()):
+                fixed_unb += float(t.potential_energy(q))
+        pts = np.concatenate([np.asarray(q_own).reshape(-1, 3), fq])
+        box = np.concatenate([pts.min(axis=0), -pts.max(axis=0)]) if pts.size else np.full(6, np.inf)
+        box = np.ascontiguousarray(box, dtype=np.float64)
+        self.mpi.Allreduce(self.MPI.IN_PLACE, box, op=self.MPI.MIN)
+        local = dict(kinetic=0.5 * float(np.sum(self.mass[:, None] * np.asarray(qd_own) ** 2)),
+                     mass=float(self.mass.sum() + np.sum(self.scene.fixed_model.particle_mass)),
+                     fixed_unbounded=fixed_unb, parts=parts, floors=floors)
+        every = self.mpi.allgather(local)
+        out = {k: float(sum(e[k] for e in every)) for k in ("kinetic", "mass", "fixed_unbounded")}
+        names = sorted({k for e in every for k in e["parts"]})
+        out["parts"] = {k: float(sum(e["parts"].get(k, 0.0) for e in every)) for k in names}
+        fl = {k: float(sum(e["floors"].get(k, 0.0) for e in every)) for k in names}
+        out["floor"] = float(sum(v for v in fl.values() if np.isfinite(v)))
+        out["unbounded"] = [k for k in names if not np.isfinite(fl[k])]
+        out["extent"] = float(np.linalg.norm(-box[3:] - box[:3])) if np.all(np.isfinite(box)) else 0.0
+        return out
+
+    def frame_energy(self, q_own, qd_own) -> float:
+        """Kinetic plus potential energy [J] of the whole scene at a state, but the constant energy of pairs between
+        fixed particles (collective); the energy-growth check compares frames with it.
+
+        Parameters
+        ----------
+        q_own, qd_own : ndarray, shape (n_own, 3)
+            This rank's owned positions [m] and velocities [m/s].
+
+        Returns
+        -------
+        float
+            The energy [J], the same on every rank.
+        """
+        self.exchange(q_own)
+        fq = np.asarray(self.scene.fixed_model.particle_q)
+        local = (self._local_potential(self.q_loc) + 0.5 * float(np.sum(self.mass[:, None] * np.asarray(qd_own) ** 2))
+                 + sum(float(t.potential_energy(fq)) for t in self.fixed_terms if t.conservative))
+        return self.sum(local)
 
     # -- options ------------------------------------------------------------------------------------------------
     def insert_options(self, options) -> None:
@@ -739,11 +863,13 @@ class DistributedSystem(System):
         """
         counts = self.mpi.gather(3 * q_own.shape[0], root=root)
         out = []
-        for own, init in ((q_own, self.model.particle_q), (v_own, None)):
+        for own, init in ((q_own, True), (v_own, False)):
             if self.rank == root:
                 buf = np.empty(3 * self.free_count)
                 self.mpi.Gatherv(np.ascontiguousarray(own).ravel(), (buf, counts), root=root)
-                full = np.array(init) if init is not None else np.zeros((self.model.particle_count, 3))
+                full = np.zeros((self.scene.particle_count, 3))
+                if init:
+                    full[self._fixed_ids] = self._fixed_q
                 full[self.system_particles] = buf.reshape(-1, 3)
                 out.append(full)
             else:
