@@ -23,13 +23,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..forces._data import data_terms
 from ..model import Model
 from ..model.builder import ModelBuilder, resolve_cloth_grid
 from ..model.model import AXES, ClothGrid
 from ..model.topology import cloth_grid_pairs, cloth_pin_mask
 from .partition import LocalPart, _sub_model, contiguous_offsets, local_part, partition
 
-__all__ = ["ScenePart", "model_part", "cloth_grid_part", "benchmark_cloth_part", "scatter_model"]
+__all__ = ["ScenePart", "model_part", "cloth_grid_part", "benchmark_cloth_part", "scatter_model", "repartition"]
 
 
 @dataclass(eq=False)
@@ -314,3 +315,129 @@ def benchmark_cloth_part(n: int, size: int, rank: int, **options) -> ScenePart:
 
     return cloth_grid_part(benchmark_cloth_grid(n, **options), size, rank, gravity=-9.81, up_axis=AXES[2],
                            metadata={"name": f"benchmark_cloth_{n}"})
+
+
+_BASE = ("particle_q", "particle_qd", "particle_mass", "particle_radius", "particle_fixed")
+
+
+def _route(mpi, dest: np.ndarray, arrays: dict) -> dict:
+    """Send row ``i`` of every array of ``arrays`` to rank ``dest[i]``; the rows received, by source rank (one
+    all-to-all; a loop over ranks only)."""
+    size = mpi.Get_size()
+    by = np.argsort(dest, kind="stable")
+    cuts = np.searchsorted(dest[by], np.arange(size + 1))
+    got = mpi.alltoall([{k: v[by[cuts[r]:cuts[r + 1]]] for k, v in arrays.items()} for r in range(size)])
+    return {k: np.concatenate([g[k] for g in got]) for k in arrays}
+
+
+def repartition(scene: ScenePart, parts: np.ndarray, comm=None) -> ScenePart:
+    """Move a scene's particles and pairs to new owners (collective): ``parts[i]`` is the new rank of this rank's
+    owned particle ``i``; the system is then numbered part by part, the serial order kept within a part.
+
+    Every rank sends its owned particles' data to their new owners and each of its pairs, with the data of both its
+    particles, to the pair's new owner (the new owner of its first free particle); the ghosts' new owners and
+    numbers come from their current owners. All-to-all exchanges of numpy rows; no loop over particles or pairs.
+    The fixed particles' blocks do not move.
+
+    Parameters
+    ----------
+    scene : ScenePart
+        This rank's part (any partition).
+    parts : ndarray of int, shape (n_own,)
+        New rank of each owned particle.
+    comm : mpi4py or petsc4py communicator, optional
+        Default MPI's world.
+
+    Returns
+    -------
+    ScenePart
+        This rank's new part; its ``part.order`` is None (the frames are gathered by particle id).
+    """
+    mpi = _as_mpi(comm)
+    size, rank = mpi.Get_size(), mpi.Get_rank()
+    p = scene.part
+    parts = np.asarray(parts, dtype=np.int64)
+    counts = np.bincount(parts, minlength=size)
+    every = np.array(mpi.allgather(counts))                     # (ranks, parts)
+    offsets = np.concatenate([[0], np.cumsum(every.sum(axis=0))])
+    before = every[:rank].sum(axis=0)                           # particles of each part on lower ranks
+    by = np.argsort(parts, kind="stable")                       # serial order kept within a part
+    new_sys = np.empty(p.n_own, dtype=np.int64)
+    new_sys[by] = offsets[parts[by]] + before[parts[by]] + (np.arange(p.n_own) - np.searchsorted(parts[by],
+                                                                                               parts[by]))
+    # the new owner and number of every local particle: owned ones known, ghosts asked of their owners
+    L = p.local_particles.size
+    owner, sys = np.full(L, -1, dtype=np.int64), np.full(L, -1, dtype=np.int64)
+    owner[:p.n_own], sys[:p.n_own] = parts, new_sys
+    g = np.arange(p.n_own, p.n_local_free)
+    old = p.local_to_free[g]
+    ask = _route(mpi, np.searchsorted(p.offsets, old, side="right") - 1,
+                 {"old": old, "rank": np.full(g.size, rank, dtype=np.int64), "slot": g})
+    k = ask["old"] - p.lo
+    reply = _route(mpi, ask["rank"], {"slot": ask["slot"], "owner": parts[k], "sys": new_sys[k]})
+    owner[reply["slot"]], sys[reply["slot"]] = reply["owner"], reply["sys"]
+
+    pm, om = p.pair_model, p.particle_model
+    registered = dict(data_terms())
+    pair_cols = {name: np.asarray(getattr(pm, name)) for name in _BASE}
+    for term, data in pm.terms.items():  # the pairwise terms' per-particle data (the others': the owners')
+        cls = registered.get(term)
+        if cls is not None and cls.pairwise:
+            pair_cols.update({f"{term}.{spec.name}": data[spec.name] for spec in cls.data if spec.per == "particle"})
+    pair_cols.update(id=p.local_particles, owner=owner, sys=sys)
+    own_cols = {f"{term}.{spec.name}": data[spec.name] for term, data in om.terms.items()
+                for spec in getattr(registered.get(term), "data", ()) if spec.per == "particle"}
+    own_cols.update({k: v[:p.n_own] for k, v in pair_cols.items()})
+    mine = _route(mpi, parts, own_cols)                         # the new owned particles, all their data
+
+    # pairs, with both particles' rows, to the owner of the first free particle
+    rows, terms_out = [{k: mine[k] for k in pair_cols}], {}
+    for term in [t for t in pm.terms if "indices" in pm.terms[t] and t in registered]:
+        data, cls = pm.terms[term], registered[term]
+        ij = np.asarray(data["indices"])
+        first = np.where(owner[ij[:, 0]] >= 0, owner[ij[:, 0]], owner[ij[:, 1]])
+        per_pair = {spec.name: data[spec.name] for spec in cls.data if spec.per == "pair"}
+        sent = _route(mpi, first, {"i": p.local_particles[ij[:, 0]], "j": p.local_particles[ij[:, 1]], **per_pair})
+        terms_out[term] = sent
+        for end in (0, 1):
+            rows.append(_route(mpi, first, {k: v[ij[:, end]] for k, v in pair_cols.items()}))
+    got = {k: np.concatenate([r[k] for r in rows] + [pair_cols[k][:0]]) for k in pair_cols}
+    ids, first_row = np.unique(got["id"], return_index=True)
+    particles = {k: v[first_row] for k, v in got.items()}
+    n = ids.size
+    model_terms = {}
+    for term, data in pm.terms.items():
+        cls = registered.get(term)
+        if cls is None or not cls.pairwise:
+            continue
+        d = {}
+        for spec in cls.data:
+            if spec.per == "particle":
+                d[spec.name] = particles[f"{term}.{spec.name}"]
+            elif spec.per == "model":
+                d[spec.name] = np.array(data[spec.name])
+        if term in terms_out:
+            t = terms_out[term]
+            d["indices"] = np.stack([np.searchsorted(ids, t["i"]), np.searchsorted(ids, t["j"])], axis=1)
+            d.update({spec.name: t[spec.name] for spec in cls.data if spec.per == "pair"})
+        model_terms[term] = d
+    at = np.searchsorted(ids, mine["id"])
+    for term, data in om.terms.items():
+        cls = registered.get(term)
+        if cls is None or cls.pairwise:
+            continue
+        d = model_terms.setdefault(term, {})
+        for spec in cls.data:
+            if spec.per == "particle":
+                a = np.full((n,) + tuple(spec.shape), spec.default, dtype=np.float64)
+                a[at] = mine[f"{term}.{spec.name}"]
+                d[spec.name] = a
+            elif spec.per == "model":
+                d[spec.name] = np.array(data[spec.name])
+    piece = Model(**{k: particles[k] for k in _BASE}, terms=model_terms, gravity=om.gravity, up_axis=om.up_axis,
+                  pair_epsilon=om.pair_epsilon, metadata=dict(om.metadata))
+    new = local_part(piece, size, rank, offsets, particles["sys"], particles["owner"], ids=ids)
+    return ScenePart(part=new, particle_count=scene.particle_count, free_count=scene.free_count,
+                     fixed_ids=scene.fixed_ids, fixed_model=scene.fixed_model, gravity=scene.gravity,
+                     up_axis=scene.up_axis, pair_epsilon=scene.pair_epsilon, metadata=scene.metadata,
+                     cloth_grids=scene.cloth_grids, damped=scene.damped, model_fingerprint=scene.model_fingerprint)

@@ -48,9 +48,10 @@ from ..linsolve import DEFAULT_RTOL, LinearSolveResult
 from ..system import System
 from ._petsc import import_petsc
 from .partition import PARTITIONERS, LocalPart, contiguous_offsets, pair_families, system_order
-from .scene import ScenePart, model_part
+from .scene import ScenePart, model_part, repartition
 
-__all__ = ["DistributedSystem", "GAMG_DEFAULTS", "SPRINGSIM_OPTIONS", "graph_partition", "owned_row_pattern"]
+__all__ = ["DistributedSystem", "GAMG_DEFAULTS", "SPRINGSIM_OPTIONS", "graph_partition", "owned_row_pattern",
+           "part_pattern", "graph_parts"]
 
 #: PETSc options springsim sets unless given (``--petsc-options``, ``PETSC_OPTIONS``, the command line).
 #: GAMG's Chebyshev smoothers scale an estimate of the largest eigenvalue of each level by a safety factor
@@ -119,6 +120,55 @@ def owned_row_pattern(model, lo: int, hi: int, order: np.ndarray | None = None) 
     return indptr, cols
 
 
+def part_pattern(part: LocalPart, free_count: int, mpi) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Block pattern of a rank's owned rows from its local pairs alone: ``(indptr, cols, pairs)``. Collective.
+
+    Row ``k`` holds ``k`` and every free particle paired with ``k`` (what :func:`owned_row_pattern` computes from
+    the whole model): the rank's pairs give the entries of its owned rows and of its ghosts' rows, and the latter go
+    to their owners in one all-to-all (vectorized; a loop over ranks only).
+
+    Parameters
+    ----------
+    part : LocalPart
+        The rank's part.
+    free_count : int
+        Free particles of the whole scene, F.
+    mpi : mpi4py communicator
+        The ranks.
+
+    Returns
+    -------
+    indptr : ndarray of int, shape (n_own + 1,)
+        Row pointers.
+    cols : ndarray of int
+        Block columns (system numbering), sorted within each row.
+    pairs : ndarray of int, shape (n_own,)
+        Number of pairs between each owned particle and another free particle (the graph partition's weights).
+    """
+    l2f = part.local_to_free
+    r, c = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
+    for term in pair_families(part.pair_model):
+        ij = l2f[part.pair_model.terms[term]["indices"]]
+        ij = ij[(ij[:, 0] >= 0) & (ij[:, 1] >= 0)]
+        r += [ij[:, 0], ij[:, 1]]
+        c += [ij[:, 1], ij[:, 0]]
+    rows, cols = np.concatenate(r).astype(np.int64), np.concatenate(c).astype(np.int64)
+    size = mpi.Get_size()
+    dest = np.searchsorted(part.offsets, rows, side="right") - 1
+    by = np.argsort(dest, kind="stable")
+    rows, cols, dest = rows[by], cols[by], dest[by]
+    cuts = np.searchsorted(dest, np.arange(size + 1))
+    got = mpi.alltoall([(rows[cuts[k]:cuts[k + 1]], cols[cuts[k]:cuts[k + 1]]) for k in range(size)])
+    lo, hi, F = part.lo, part.hi, int(free_count)
+    rows = np.concatenate([g[0] for g in got] + [np.zeros(0, np.int64)]) - lo
+    cols = np.concatenate([g[1] for g in got] + [np.zeros(0, np.int64)])
+    pairs = np.bincount(rows, minlength=hi - lo)
+    key = np.unique(np.concatenate([np.arange(hi - lo) * F + np.arange(lo, hi), rows * F + cols]))
+    rows, cols = key // F, key % F
+    indptr = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=hi - lo))])
+    return indptr, cols, pairs
+
+
 def _scalar_csr(indptr: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Scalar CSR (3 rows per block row, 3 columns per block) of a block pattern."""
     m = np.diff(indptr)                        # blocks per block row
@@ -173,6 +223,91 @@ def graph_partition(model, comm, method: str) -> tuple[np.ndarray, np.ndarray]:
         obj.destroy()
     order = np.argsort(owner, kind="stable")
     return order, np.concatenate([[0], np.cumsum(np.bincount(owner, minlength=size))])
+
+
+def graph_parts(part: LocalPart, free_count: int, comm, method: str, *, weights: bool = True) -> np.ndarray:
+    """The new rank of each of this rank's owned particles: PETSc's ``MatPartitioning`` of type ``method`` on the
+    distributed particle graph (an edge per pair; each rank gives its owned rows, :func:`part_pattern`), each
+    particle weighted by its pairs. Collective over ``comm``; no rank holds the whole graph.
+
+    Parameters
+    ----------
+    part : LocalPart
+        This rank's part (its owned rows are its rows of the graph).
+    free_count : int
+        Free particles of the whole scene.
+    comm : petsc4py Comm
+        The ranks; one part per rank.
+    method : str
+        A ``MatPartitioning`` type (``ptscotch``, ``parmetis``).
+    weights : bool
+        Weigh each particle by its number of pairs (at least 1), so that parts balance the pair work.
+
+    Returns
+    -------
+    ndarray of int, shape (n_own,)
+        The part (rank) of each owned particle.
+    """
+    PETSc, _ = import_petsc()
+    mpi = comm.tompi4py()
+    F = int(free_count)
+    lo, hi = part.lo, part.hi
+    indptr, cols, pairs = part_pattern(part, F, mpi)
+    rows = np.repeat(np.arange(lo, hi), np.diff(indptr))
+    off = cols != rows  # the adjacency has no diagonal
+    adj_ptr = np.concatenate([[0], np.cumsum(np.bincount(rows[off] - lo, minlength=hi - lo))])
+    adj = PETSc.Mat().createAIJ(((hi - lo, F), (hi - lo, F)), comm=comm,
+                                csr=(adj_ptr.astype(PETSc.IntType), cols[off].astype(PETSc.IntType),
+                                     np.ones(int(off.sum()))))
+    mp = PETSc.MatPartitioning().create(comm=comm)
+    try:
+        mp.setType(method)
+        mp.setAdjacency(adj)
+        if weights:
+            _set_vertex_weights(mp, np.maximum(pairs, 1))
+        mp.setFromOptions()
+        out = PETSc.IS()
+        mp.apply(out)
+        parts = np.array(out.getIndices(), dtype=np.int64)
+        out.destroy()
+    finally:
+        mp.destroy()
+        adj.destroy()
+    return parts
+
+
+def _set_vertex_weights(mp, w: np.ndarray) -> None:
+    """``MatPartitioningSetVertexWeights`` (not in petsc4py 3.18) through ctypes: PETSc takes the array and frees it
+    with ``PetscFree``, so it is allocated with PETSc's own ``PetscMallocA``."""
+    import ctypes
+
+    PETSc, _ = import_petsc()
+    lib = _petsc_library()
+    itemsize = np.dtype(PETSc.IntType).itemsize
+    ptr = ctypes.c_void_p()
+    lib.PetscMallocA.restype = ctypes.c_int
+    err = lib.PetscMallocA(ctypes.c_int(1), ctypes.c_int(0), ctypes.c_int(0), ctypes.c_char_p(b"springsim"),
+                           ctypes.c_char_p(b"system.py"), ctypes.c_size_t(max(w.size, 1) * itemsize),
+                           ctypes.byref(ptr))
+    if err:
+        raise PETSc.Error(err)
+    data = np.ascontiguousarray(w, dtype=PETSc.IntType)
+    ctypes.memmove(ptr, data.ctypes.data, data.nbytes)
+    lib.MatPartitioningSetVertexWeights.restype = ctypes.c_int
+    err = lib.MatPartitioningSetVertexWeights(ctypes.c_void_p(mp.handle), ptr)
+    if err:
+        raise PETSc.Error(err)
+
+
+def _petsc_library():
+    """The PETSc shared library petsc4py is linked to (found among the process's mappings)."""
+    import ctypes
+
+    with open("/proc/self/maps") as fh:
+        paths = {line.split()[-1] for line in fh if "libpetsc" in line and ".so" in line}
+    if not paths:
+        raise OSError("PETSc's shared library is not mapped")
+    return ctypes.CDLL(sorted(paths)[0])
 
 
 class _Operator:
@@ -235,10 +370,14 @@ class DistributedSystem(System):
             raise SceneError("partitioner", f"must be one of {', '.join(PARTITIONERS)}, got {partitioner!r:.60}")
         order = offsets = None
         if isinstance(model, ScenePart):  # built per rank: no rank has the whole model
-            if partitioner != "contiguous":
-                raise SceneError("partitioner", f"{partitioner!r} needs the whole model on every rank; a scene "
-                                                f"built per rank is split into contiguous blocks")
             scene = model
+            if partitioner != "contiguous":  # the distributed graph, then the particles and pairs move
+                try:
+                    parts = graph_parts(scene.part, scene.free_count, self.comm, partitioner)
+                except PETSc.Error as e:
+                    raise SceneError("partitioner", f"PETSc's MatPartitioning {partitioner!r} failed (error code "
+                                                    f"{e.ierr}); is it in this PETSc build?") from None
+                scene = repartition(scene, parts, self.mpi)
         else:
             if partitioner != "contiguous":
                 try:
@@ -339,31 +478,8 @@ class DistributedSystem(System):
         del own_ids, fixed
 
     def _owned_row_pattern(self) -> tuple[np.ndarray, np.ndarray]:
-        """The block pattern ``(indptr, cols)`` of the owned rows (system numbering, columns sorted), from the local
-        pairs: the entries of ghost rows go to their owners (one all-to-all). Row ``k`` holds ``k`` and every free
-        particle paired with ``k`` (what :func:`owned_row_pattern` computes from the whole model). Collective."""
-        p = self.part
-        l2f = p.local_to_free
-        r, c = [], []
-        for term in pair_families(p.pair_model):
-            ij = l2f[p.pair_model.terms[term]["indices"]]
-            ij = ij[(ij[:, 0] >= 0) & (ij[:, 1] >= 0)]
-            r += [ij[:, 0], ij[:, 1]]
-            c += [ij[:, 1], ij[:, 0]]
-        rows = np.concatenate(r + [np.zeros(0, np.int64)]).astype(np.int64)
-        cols = np.concatenate(c + [np.zeros(0, np.int64)]).astype(np.int64)
-        dest = np.searchsorted(p.offsets, rows, side="right") - 1
-        by = np.argsort(dest, kind="stable")
-        rows, cols, dest = rows[by], cols[by], dest[by]
-        cuts = np.searchsorted(dest, np.arange(self.size + 1))
-        got = self.mpi.alltoall([(rows[cuts[k]:cuts[k + 1]], cols[cuts[k]:cuts[k + 1]]) for k in range(self.size)])
-        lo, hi, F = p.lo, p.hi, self.free_count
-        rows = np.concatenate([np.arange(lo, hi)] + [g[0] for g in got])
-        cols = np.concatenate([np.arange(lo, hi)] + [g[1] for g in got])
-        key = np.unique((rows - lo) * F + cols)
-        rows, cols = key // F, key % F
-        indptr = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=hi - lo))])
-        return indptr, cols
+        """The block pattern of the owned rows from the local pairs (:func:`part_pattern`). Collective."""
+        return part_pattern(self.part, self.free_count, self.mpi)[:2]
 
     def initial_state(self):
         """This rank's state arrays at the start: the owned particles' positions [m] and velocities [m/s] (copies).
