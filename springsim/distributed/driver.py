@@ -18,7 +18,7 @@ from ..errors import SceneError, SimulationError
 from ..integrators import LinearSolveOptions, make_integrator
 from ..linsolve import DEFAULT_RTOL
 from ..io._spool import FrameSpool
-from ..run.driver import TRAJECTORY_FORMAT, TRAJECTORY_FORMAT_VERSION, simulate
+from ..run.driver import simulate
 from .system import DistributedSystem
 
 __all__ = ["simulate_distributed", "make_distributed"]
@@ -153,7 +153,8 @@ def simulate_distributed(model, integrator: str, dt: float, steps: int, *, comm=
                             check_energy=check_energy, frames=spool)
         except SimulationError as e:  # the frames so far go to ``out`` too
             if spool is not None and e.trajectory is not None:
-                _finish(spool, e.trajectory, out)
+                e.trajectory.meta["out"] = os.fspath(out)
+                e.trajectory.save(out)
             raise
         finally:
             timings = {k: float(v) for k, v in system.timings.items()}
@@ -165,15 +166,10 @@ def simulate_distributed(model, integrator: str, dt: float, steps: int, *, comm=
             traj.meta["timings"] = timings
             traj.meta["pc_stats"] = pc_stats
             if spool is not None:
-                _finish(spool, traj, out)
+                traj.meta["out"] = os.fspath(out)
+                traj.save(out)
+                traj.frames = None  # the spool goes below; the file holds the frames
         return traj
     finally:
         if spool is not None:
             spool.discard()
-
-
-def _finish(spool, traj, out) -> None:
-    """Write the spooled frames with ``traj``'s times and meta to ``out``; record the file in the meta."""
-    traj.meta["out"] = os.fspath(out)
-    meta = {**traj.meta, "format": TRAJECTORY_FORMAT, "format_version": TRAJECTORY_FORMAT_VERSION}
-    spool.finish(traj.t, meta)

@@ -28,7 +28,7 @@ from ..model import Model
 from ..model.builder import ModelBuilder, resolve_cloth_grid
 from ..model.model import AXES, ClothGrid
 from ..model.topology import cloth_grid_pairs, cloth_pin_mask
-from .partition import LocalPart, _sub_model, contiguous_offsets, local_part, partition
+from .partition import LocalPart, _sub_model, contiguous_offsets, local_part, pair_families, partition
 
 __all__ = ["ScenePart", "model_part", "cloth_grid_part", "benchmark_cloth_part", "scatter_model", "repartition"]
 
@@ -63,6 +63,8 @@ class ScenePart:
     model_fingerprint : str or None
         The whole model's :meth:`~springsim.Model.fingerprint` where some rank held it (a scattered model), None
         for a generated one (no rank has the whole model to hash).
+    pair_counts : dict
+        Pair term -> number of pairs in the whole model (also as ``<term>_count`` attributes, as a Model has).
     """
 
     part: LocalPart
@@ -77,6 +79,13 @@ class ScenePart:
     cloth_grids: tuple
     damped: bool
     model_fingerprint: str | None = None
+    pair_counts: dict | None = None
+
+    def __getattr__(self, name: str):
+        counts = self.__dict__.get("pair_counts") or {}
+        if name.endswith("_count") and name[:-6] in counts:
+            return counts[name[:-6]]
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
 
     @property
     def gravity_vector(self) -> np.ndarray:
@@ -146,7 +155,8 @@ def model_part(model: Model, size: int, rank: int, offsets=None, order=None) -> 
                      particle_count=model.particle_count, free_count=model.free_count, fixed_ids=fixed,
                      fixed_model=_sub_model(model, fixed, {}, keep_particle_terms=True), gravity=model.gravity,
                      up_axis=model.up_axis, pair_epsilon=model.pair_epsilon, metadata=dict(model.metadata),
-                     cloth_grids=tuple(model.cloth_grids), damped=bool(model.dissipates()))
+                     cloth_grids=tuple(model.cloth_grids), damped=bool(model.dissipates()),
+                     pair_counts={t: int(model.terms[t]["indices"].shape[0]) for t in pair_families(model)})
 
 
 def _as_mpi(comm):
@@ -287,9 +297,15 @@ def cloth_grid_part(grid: dict, size: int, rank: int, *, gravity: float = -9.81,
     fb = ModelBuilder(gravity=gravity, up_axis=up_axis)
     fb.add_particles(_grid_positions(c, fixed_ids), None, c["mass"], drag=c["drag"], fixed=True)
     fixed_model = fb.finalize()
+    springs = ny * (nx - 1) + (ny - 1) * nx + 2 * (ny - 1) * (nx - 1)  # the whole grid's
+    if c["bending"]:
+        springs += ny * max(nx - 2, 0) + max(ny - 2, 0) * nx
+    counts = {t: 0 for t in pair_families(piece)}
+    counts["spring"] = springs
     return ScenePart(part=part, particle_count=n, free_count=F, fixed_ids=fixed_ids, fixed_model=fixed_model,
                      gravity=piece.gravity, up_axis=piece.up_axis, pair_epsilon=piece.pair_epsilon,
-                     metadata=dict(metadata or {}), cloth_grids=(ClothGrid(0, nx, ny),), damped=bool(damped))
+                     metadata=dict(metadata or {}), cloth_grids=(ClothGrid(0, nx, ny),), damped=bool(damped),
+                     pair_counts=counts)
 
 
 def benchmark_cloth_part(n: int, size: int, rank: int, **options) -> ScenePart:
@@ -440,4 +456,5 @@ def repartition(scene: ScenePart, parts: np.ndarray, comm=None) -> ScenePart:
     return ScenePart(part=new, particle_count=scene.particle_count, free_count=scene.free_count,
                      fixed_ids=scene.fixed_ids, fixed_model=scene.fixed_model, gravity=scene.gravity,
                      up_axis=scene.up_axis, pair_epsilon=scene.pair_epsilon, metadata=scene.metadata,
-                     cloth_grids=scene.cloth_grids, damped=scene.damped, model_fingerprint=scene.model_fingerprint)
+                     cloth_grids=scene.cloth_grids, damped=scene.damped, model_fingerprint=scene.model_fingerprint,
+                     pair_counts=scene.pair_counts)

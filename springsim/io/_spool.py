@@ -4,8 +4,8 @@
 names, as :func:`~springsim.io._atomic.write_atomic` uses); :meth:`FrameSpool.finish` then writes the trajectory
 ``.npz`` (the layout of :meth:`springsim.run.driver.Trajectory.save`: ``t``, ``q``, ``qd``, ``meta``) atomically,
 copying the spooled frames into it in chunks of a few MB, and removes the temporary files. Until then the target is
-untouched; :meth:`FrameSpool.discard` (or a failure while finishing) removes the temporary files and leaves it as
-it was. Memory: one frame at a time, whatever the frame count.
+untouched (a failure while finishing leaves it as it was, and the frames spooled, e.g. for a rescue file);
+:meth:`FrameSpool.discard` removes the temporary files. Memory: one frame at a time, whatever the frame count.
 """
 
 from __future__ import annotations
@@ -65,8 +65,8 @@ class FrameSpool:
             fh.write(memoryview(a).cast("B"))
         self.count += 1
 
-    def finish(self, t, meta: dict) -> str:
-        """Write the trajectory file atomically from the frames so far and remove the temporary files.
+    def finish(self, t, meta: dict, path=None) -> str:
+        """Write the trajectory file atomically from the frames so far (they stay spooled: :meth:`discard` them).
 
         Parameters
         ----------
@@ -74,6 +74,8 @@ class FrameSpool:
             The frames' times [s].
         meta : dict
             The trajectory's ``meta`` (JSON-serialisable; ``format`` and ``format_version`` included by the caller).
+        path : str or PathLike, optional
+            Where to write it (a rescue file); default the spool's target.
 
         Returns
         -------
@@ -111,10 +113,9 @@ class FrameSpool:
                 with zf.open("meta.npy", "w", force_zip64=True) as f:
                     np.lib.format.write_array(f, np.array(json.dumps(meta, sort_keys=True)), allow_pickle=False)
 
-        try:
-            return write_atomic(self.path, write)
-        finally:
-            self.discard()
+        if not self._files:
+            raise ValueError("the spool was discarded")
+        return write_atomic(self.path if path is None else path, write)
 
     def discard(self) -> None:
         """Remove the temporary files (the target is untouched); the spool takes no more frames."""

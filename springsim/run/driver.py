@@ -83,6 +83,9 @@ class Trajectory:
         ``steps``, ``frame_every`` for fixed steps or ``t_end``, ``time_rtol``, ``time_atol`` for
         adaptive runs; the command line adds ``scene_sha256`` (of the scene file). Empty for
         trajectories made by hand.
+    frames : object or None
+        Where the frames are when ``q`` and ``qd`` are None: the sink they were streamed to
+        (:class:`springsim.io._spool.FrameSpool`), which :meth:`save` writes out.
     """
 
     t: np.ndarray
@@ -93,6 +96,7 @@ class Trajectory:
     cpu_s: float = 0.0
     adaptive_stats: dict | None = None
     meta: dict = field(default_factory=dict)
+    frames: object = None
 
     @property
     def frame_count(self) -> int:
@@ -130,6 +134,9 @@ class Trajectory:
             Writing failed (full disk, permissions); the target is unchanged.
         """
         meta = {**self.meta, "format": TRAJECTORY_FORMAT, "format_version": TRAJECTORY_FORMAT_VERSION}
+        if self.q is None and self.frames is not None:  # streamed: written from the sink, a frame at a time
+            self.frames.finish(self.t, meta, path)
+            return
         save_npz_atomic(path, t=self.t, q=self.q, qd=self.qd, meta=np.array(json.dumps(meta, sort_keys=True)))
 
     @classmethod
@@ -411,7 +418,8 @@ class RunRecorder:
         return Trajectory(np.array(self.t), None if streamed else np.array(self.q),
                           None if streamed else np.array(self.qd), self.stats,
                           time.perf_counter() - self._wall0, time.process_time() - self._cpu0,
-                          None if self.adaptive_stats is None else dict(self.adaptive_stats), meta)
+                          None if self.adaptive_stats is None else dict(self.adaptive_stats), meta,
+                          self.frames if streamed else None)
 
     def kept(self) -> str:
         """What a failed run keeps, for its error message: ``"kept 12 finite frame(s) up to t=0.5 s"``.
