@@ -3,9 +3,9 @@
 Rank 0 reads the scene; the ranks agree on the outcome before any distributed work, so a bad input ends all
 ranks with one ``springsim: error:`` line from rank 0 and exit status 2; rank 0 then sends every rank the run
 configuration and its part of the model (no rank keeps the whole model), and streams the gathered frames to
-``--out`` (:class:`~springsim.io._spool.FrameSpool`) instead of holding them. Errors during the run are collective (global reductions decide blow-ups and Newton; KSP results
-are global), so every rank stops at the same step and rank 0 reports it, saving the frames so far with
-``--out``. Anything else on one rank (a bug, memory exhausted) prints one line naming the rank and aborts
+``--out`` (:class:`~springsim.io._spool.FrameSpool`) instead of holding them. Errors during the run are
+collective (global reductions decide blow-ups and Newton; KSP results are global), so every rank stops at the
+same step and rank 0 reports it, saving the frames so far with ``--out``. Anything else on one rank (a bug, memory exhausted) prints one line naming the rank and aborts
 the MPI job, so no rank waits forever in a collective call.
 """
 
