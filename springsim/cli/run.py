@@ -51,6 +51,10 @@ def _load_agreed(args):
                 check_output_path(args.out, suffixes=(".npz",), inputs=(args.scene,))
         except (SpringsimError, OSError) as e:
             err = error_text(e, args.scene)
+        except Exception as e:  # a bug while reading: end every rank now, they wait in agree()
+            if many:
+                abort_on_error(e)
+            raise
     err = agree(err)
     if err is not None:
         if root:

@@ -288,8 +288,8 @@ def test_eisenstat_walker_forcing_matches_serial(tmp_path):
 
 @needs_petsc
 def test_cli_two_ranks_matches_serial_run(tmp_path):
-    """``mpiexec -n 2 springsim run --backend petsc --out``: rank 0 alone prints and writes, the frames match a
-    serial run of the same scene (linearized implicit Euler, AMG-CG against KSP CG + GAMG, both at rtol 1e-10)."""
+    """``mpiexec -n 2 springsim run --backend petsc --out``: rank 0 alone reads, prints and writes (the frames
+    streamed), the frames match a serial run of the same scene (linearized implicit Euler, AMG-CG against KSP CG + GAMG, both at rtol 1e-10)."""
     from springsim.cli import main
 
     scene_path = tmp_path / "cloth.yaml"
@@ -298,6 +298,7 @@ def test_cli_two_ranks_matches_serial_run(tmp_path):
     out = tmp_path / "d.npz"
     r = mpirun(2, [sys.executable, "-m", "springsim", "run", str(scene_path), "--backend", "petsc", "--out", str(out)])
     assert r.stdout.count("backend:") == 1 and "petsc, 2 MPI rank(s)" in r.stdout
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cloth.yaml", "d.npz"]  # streamed: no spool left
     assert re.search(r"failed steps:\s+0 ", r.stdout)
     assert main(["run", str(scene_path), "--out", str(tmp_path / "s.npz"), "-q"]) == 0
     d, s = np.load(out), np.load(tmp_path / "s.npz")
