@@ -14,8 +14,8 @@ vectors and the matrix have block size 3.
   blocks of the local terms into a local block-CSR matrix over owned and ghost particles (pattern
   computed once, mass on the owned diagonal only); its rows go into the PETSc AIJ matrix (block size 3)
   with ``MatSetValuesBlockedLocal`` through the local-to-global map, adding; PETSc sends the ghost rows to
-  their owners during assembly. The matrix is preallocated exactly, once, from the global pair lists, and
-  a new nonzero is an error.
+  their owners during assembly. The matrix is preallocated exactly, once, from the local pairs (the ghosts'
+  rows' entries sent to their owners, :func:`part_pattern`), and a new nonzero is an error.
 * **Solve** (:meth:`DistributedSystem.solve`): CG with GAMG by default (GMRES when the matrix is not
   symmetric), the rigid-body modes at the current positions as GAMG's near-null space, then
   ``setFromOptions``, so every ``-ksp_*``/``-pc_*`` option (command line, ``PETSC_OPTIONS``,
@@ -328,8 +328,9 @@ class DistributedSystem(System):
 
     Parameters
     ----------
-    model : Model
-        The whole model, the same on every rank.
+    model : Model or ScenePart
+        The whole model, the same on every rank; or this rank's part of a scene built per rank
+        (:mod:`springsim.distributed.scene`), where no rank holds the whole model.
     comm : petsc4py Comm, optional
         Default ``PETSc.COMM_WORLD``.
     rtol, atol, maxiter : float, float, int
@@ -343,7 +344,9 @@ class DistributedSystem(System):
     partitioner : str
         One of :data:`PARTITIONERS`: ``contiguous`` (default) keeps the serial numbering, so the gathered matrix
         is the serial one; a graph partitioner gives each rank a compact part of the particle graph (fewer
-        ghosts on scenes numbered at random) and numbers the system part by part.
+        ghosts on scenes numbered at random) and numbers the system part by part. For a scene part it runs on the
+        distributed graph (:func:`graph_parts`) and the particles and pairs then move
+        (:func:`~springsim.distributed.scene.repartition`).
     force_kernels : {"auto", "numba", "numpy"}
         Compiled force passes or the pure numpy path (:func:`springsim.forces.make_force_terms`).
 
