@@ -55,7 +55,7 @@ def _load_agreed(args):
             if many:
                 abort_on_error(e)
             raise
-    err = agree(err)
+    err = _verdict(err) if many else err
     if err is not None:
         if root:
             print(f"springsim: error: {err}", file=sys.stderr)
@@ -78,6 +78,17 @@ def _load_agreed(args):
             abort_on_error(e)
         raise
     return scene, cfg
+
+
+def _verdict(err):
+    """Rank 0's error (None: fine), on every rank (collective; without MPI's Python module, this rank's own)."""
+    from ..distributed import import_petsc
+
+    try:
+        _, MPI = import_petsc()
+    except SpringsimError:
+        return agree(err)
+    return MPI.COMM_WORLD.bcast(err, root=0)
 
 
 def _scene_parts(scene):
