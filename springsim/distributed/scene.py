@@ -378,9 +378,9 @@ def repartition(scene: ScenePart, parts: np.ndarray, comm=None) -> ScenePart:
     offsets = np.concatenate([[0], np.cumsum(every.sum(axis=0))])
     before = every[:rank].sum(axis=0)                           # particles of each part on lower ranks
     by = np.argsort(parts, kind="stable")                       # serial order kept within a part
-    new_sys = np.empty(p.n_own, dtype=np.int64)
-    new_sys[by] = offsets[parts[by]] + before[parts[by]] + (np.arange(p.n_own) - np.searchsorted(parts[by],
-                                                                                               parts[by]))
+    ps = parts[by]
+    new_sys = np.empty(p.n_own, dtype=np.int64)         # part's first row, lower ranks' share, place on this rank
+    new_sys[by] = offsets[ps] + before[ps] + np.arange(p.n_own) - np.searchsorted(ps, ps)
     # the new owner and number of every local particle: owned ones known, ghosts asked of their owners
     L = p.local_particles.size
     owner, sys = np.full(L, -1, dtype=np.int64), np.full(L, -1, dtype=np.int64)
