@@ -286,6 +286,38 @@ def stopped_streamed(out):
         return 0
     return 1
 
+
+def weighted_partition(out):
+    """PT-Scotch on the distributed graph of a cloth whose upper half has 20 extra springs per particle, with and
+    without weighing the particles by their pairs: particles and pair ends per part (rank 0 writes JSON)."""
+    import json
+
+    from springsim import ModelBuilder
+    from springsim.distributed import import_petsc, scatter_model
+    from springsim.distributed.system import graph_parts, part_pattern
+
+    PETSc, MPI = import_petsc()
+    comm = MPI.COMM_WORLD
+    model = None
+    if comm.rank == 0:
+        b = ModelBuilder()
+        b.add_cloth_grid(20, 20, pin="none")
+        i = np.repeat(np.arange(200, 400), 20)
+        j = np.clip(i + np.random.default_rng(0).integers(-40, 40, i.size), 200, 399)
+        b.add_springs(np.stack([i[i != j], j[i != j]], axis=1), 10.0, 0.0)
+        model = b.finalize()
+    part = scatter_model(model, comm)
+    report = {}
+    for weights in (False, True):
+        parts = graph_parts(part.part, part.free_count, PETSc.COMM_WORLD, "ptscotch", weights=weights)
+        pairs = part_pattern(part.part, part.free_count, comm)[2]
+        report[str(weights)] = [comm.allreduce(np.bincount(parts, minlength=comm.size)).tolist(),
+                                comm.allreduce(np.bincount(parts, weights=pairs, minlength=comm.size)).tolist()]
+    if comm.rank == 0:
+        with open(out, "w") as fh:
+            json.dump(report, fh)
+    return 0
+
 if __name__ == "__main__":
     case, *args = sys.argv[1:]
     sys.exit(globals()[case](*args))

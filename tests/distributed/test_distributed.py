@@ -577,3 +577,17 @@ def test_stopped_run_streams_its_frames(tmp_path):
     t = Trajectory.load(out)
     assert t.frame_count == int(steps.pop()) and np.isfinite(t.q).all()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["s.npz"]
+
+
+@needs_petsc
+def test_graph_partition_weighs_particles_by_their_pairs(tmp_path):
+    """On the distributed graph, PT-Scotch balances the parts' pairs (each particle weighted by its pair count,
+    through MatPartitioningSetVertexWeights), not their particle counts."""
+    import json
+
+    out = tmp_path / "w.json"
+    mpirun(2, "weighted_partition", str(out))
+    r = json.loads(out.read_text())
+    (n0, e0), (n1, e1) = r["False"], r["True"]
+    assert max(n0) <= 1.1 * min(n0) and max(e0) > 2 * min(e0)   # unweighted: particles balanced, pairs not
+    assert max(e1) <= 1.1 * min(e1) and max(n1) > 1.5 * min(n1)  # weighted: pairs balanced
