@@ -5,7 +5,9 @@ For each cloth size ``n`` (default 256 512; ``benchmark_cloth(n)``, linearized i
 
 * **serial**: springsim's own path (``auto`` -> AMG-CG with the pyamg hierarchy), ``springsim.simulate``;
 * **petsc, r ranks** for every ``r`` of ``--ranks`` (default 1 2): ``mpiexec -n r`` running
-  :func:`springsim.distributed.simulate_distributed` (KSP CG + GAMG, PETSc options from ``--petsc-options``).
+  :func:`springsim.distributed.simulate_distributed` (KSP CG + GAMG, PETSc options from ``--petsc-options``) on the
+  cloth each rank generates for itself (:func:`springsim.distributed.benchmark_cloth_part`; ``--build replicated``:
+  every rank builds the whole model, as before).
 
 ``--steps`` steps each (default 3; the first includes no extra set-up: every step builds its preconditioner).
 Reported per step (rank 0's wall time, averaged over the steps): total, its ratio to the serial row's
