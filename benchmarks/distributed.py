@@ -5,7 +5,9 @@ For each cloth size ``n`` (default 256 512; ``benchmark_cloth(n)``, linearized i
 
 * **serial**: springsim's own path (``auto`` -> AMG-CG with the pyamg hierarchy), ``springsim.simulate``;
 * **petsc, r ranks** for every ``r`` of ``--ranks`` (default 1 2): ``mpiexec -n r`` running
-  :func:`springsim.distributed.simulate_distributed` (KSP CG + GAMG, PETSc options from ``--petsc-options``).
+  :func:`springsim.distributed.simulate_distributed` (KSP CG + GAMG, PETSc options from ``--petsc-options``) on the
+  cloth each rank generates for itself (:func:`springsim.distributed.benchmark_cloth_part`; ``--build replicated``:
+  every rank builds the whole model, as before).
 
 ``--steps`` steps each (default 3; the first includes no extra set-up: every step builds its preconditioner).
 Reported per step (rank 0's wall time, averaged over the steps): total, its ratio to the serial row's
@@ -61,10 +63,11 @@ def worker(argv) -> int:
     p.add_argument("steps", type=int)
     p.add_argument("out")
     p.add_argument("--petsc-options", default="")
+    p.add_argument("--build", choices=("per-rank", "replicated"), default="per-rank")
     a = p.parse_args(argv)
     from springsim.scene import benchmark_cloth
 
-    model = benchmark_cloth(a.n)
+    model = benchmark_cloth(a.n) if a.mode == "serial" or a.build == "replicated" else None
     dt = 1.0 / 60.0
     t0 = time.perf_counter()
     pc = dict(pc_builds=float("nan"), pc_reuses=float("nan"), pc_stale=float("nan"))
@@ -91,6 +94,10 @@ def worker(argv) -> int:
         comm = MPI.COMM_WORLD
         rank, ranks = comm.Get_rank(), comm.Get_size()
         c0 = time.process_time()
+        if model is None:  # each rank builds its own rows of the cloth
+            from springsim.distributed import benchmark_cloth_part
+
+            model = benchmark_cloth_part(a.n, ranks, rank)
         traj = simulate_distributed(model, "linearized_implicit", dt, a.steps, record=False, linear_rtol=1e-6,
                                     petsc_options=a.petsc_options or None)
         cpu = time.process_time() - c0
@@ -123,10 +130,11 @@ def _mpiexec(ranks: int) -> list[str]:
     return cmd
 
 
-def run_config(mode: str, n: int, steps: int, ranks: int, petsc_options: str, tmp: Path) -> dict:
+def run_config(mode: str, n: int, steps: int, ranks: int, petsc_options: str, tmp: Path,
+               build: str = "per-rank") -> dict:
     out = tmp / f"{mode}_{n}_{ranks}.json"
     cmd = [sys.executable, "-m", "benchmarks.distributed", "--worker", mode, str(n), str(steps), str(out),
-           "--petsc-options=" + petsc_options]
+           "--petsc-options=" + petsc_options, "--build", build]
     if mode == "petsc":
         cmd = _mpiexec(ranks) + cmd
     env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1")
@@ -147,6 +155,8 @@ def main(argv=None) -> int:
     p.add_argument("--steps", type=int, default=3, help="steps per configuration (default 3)")
     p.add_argument("--petsc-options", default="", help="PETSc options of the petsc runs")
     p.add_argument("--no-serial", action="store_true", help="skip the serial path (no agreement column then)")
+    p.add_argument("--build", choices=("per-rank", "replicated"), default="per-rank",
+                   help="petsc runs: every rank generates its rows of the cloth (default), or builds the whole model")
     p.add_argument("--out", type=Path, default=RESULTS_DIR)
     a = p.parse_args(argv)
     from springsim.distributed import petsc_available
@@ -164,7 +174,7 @@ def main(argv=None) -> int:
             configs = ([] if a.no_serial else [("serial", 1)]) + [("petsc", r) for r in a.ranks]
             for mode, ranks in configs:
                 load = os.getloadavg()[0]  # 1-minute load average before the run (other processes' share)
-                r = run_config(mode, n, a.steps, ranks, a.petsc_options, Path(tmp))
+                r = run_config(mode, n, a.steps, ranks, a.petsc_options, Path(tmp), a.build)
                 if mode == "serial":
                     serial, serial_row = r["q"], r
                 diff = float(np.abs(r["q"] - serial).max()) if serial is not None else float("nan")

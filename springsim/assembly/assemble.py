@@ -180,9 +180,9 @@ class SystemAssembler:
         dest = self.pattern.locate(rows, cols)
         self._scatter = sp.csr_matrix((cat(signs, np.float64), (dest, cat(srcs, np.int64))),
                                       shape=(self.pattern.nnzb, self.value_count))
-        self._mass = np.zeros((self.pattern.nnzb, 3, 3))
         self._free_mass = model.particle_mass[self.free]
-        self._mass[self.pattern.diagonal_positions] = self._free_mass[:, None, None] * np.eye(3)
+        # the mass enters the diagonal blocks only: kept per particle, not as a block array over the whole pattern
+        self._diagonal = self.pattern.diagonal_positions
         self._values = np.empty((self.value_count, 3, 3))
         self._work = {id(term): {} for term in self.terms}  # per-term temporaries, kept between assemblies
         self.matrix = SystemMatrix(self.pattern.empty_bsr(), self.pattern)
@@ -266,7 +266,9 @@ class SystemAssembler:
                 blocks = jq if which == "q" else jqd
                 np.multiply(blocks.values, -(a if which == "q" else b), out=V[off:off + cnt])
         data = self.matrix.bsr.data
-        data[...] = self._mass
+        data.fill(0.0)
+        for k in range(3):
+            data[self._diagonal, k, k] = self._free_mass
         if self.value_count:
             _scatter_add(self._scatter, V.reshape(-1, 9), data.reshape(-1, 9))
         m = self.matrix

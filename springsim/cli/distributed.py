@@ -1,10 +1,11 @@
 """``springsim run --backend petsc`` under ``mpiexec``: the distributed run and its one-message error handling.
 
-Every rank loads the scene; the ranks agree on the outcome before any distributed work, so a bad input
-(on every rank, or on one only) ends all ranks with one ``springsim: error:`` line from rank 0 and exit
-status 2. Errors during the run are collective (global reductions decide blow-ups and Newton; KSP results
-are global), so every rank stops at the same step and rank 0 reports it, saving the frames so far with
-``--out``. Anything else on one rank (a bug, memory exhausted) prints one line naming the rank and aborts
+Rank 0 reads the scene; the ranks agree on the outcome before any distributed work, so a bad input ends all
+ranks with one ``springsim: error:`` line from rank 0 and exit status 2; rank 0 then sends every rank the run
+configuration and its part of the model (no rank keeps the whole model), and streams the gathered frames to
+``--out`` (:class:`~springsim.io._spool.FrameSpool`) instead of holding them. Errors during the run are
+collective (global reductions decide blow-ups and Newton; KSP results are global), so every rank stops at the
+same step and rank 0 reports it, saving the frames so far with ``--out``. Anything else on one rank (a bug, memory exhausted) prints one line naming the rank and aborts
 the MPI job, so no rank waits forever in a collective call.
 """
 
@@ -13,6 +14,7 @@ from __future__ import annotations
 import sys
 
 from ..errors import SimulationError, SpringsimError
+from ..io._spool import FrameSpool
 from .runner import (_provenance, execute, print_rows, save_or_rescue, save_stopped_run, summary_lines,
                      warn_failed_steps)
 from .session import _Exit
@@ -94,8 +96,19 @@ def run_distributed(args, scene, cfg) -> int:
     import_petsc()  # BackendUnavailable (a SpringsimError): one line with the install hint
     root = env_rank() == 0
     record = args.out is not None
+    spool = FrameSpool(args.out) if record and root else None  # rank 0 streams the frames to --out
     try:
-        integrator, traj = execute(scene, cfg, record=record, frame_every=args.frame_every, quiet=not root)
+        return _run(args, scene, cfg, spool, root, record)
+    finally:
+        if spool is not None:
+            spool.discard()
+
+
+def _run(args, scene, cfg, spool, root: bool, record: bool) -> int:
+    """:func:`run_distributed` once the frame spool is open."""
+    try:
+        integrator, traj = execute(scene, cfg, record=record, frame_every=args.frame_every, quiet=not root,
+                                   frames=spool)
     except SimulationError as e:
         if e.trajectory is None:  # not the root rank: the root reports
             raise _Exit(1) from None

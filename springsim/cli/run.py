@@ -8,6 +8,7 @@ set-up phases are logged (:mod:`springsim.progress`) to stderr.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 
 from ..errors import SimulationError, SimulationInterrupted, SpringsimError
@@ -34,23 +35,71 @@ def _add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _load_agreed(args):
-    """:func:`load_and_configure` under ``mpiexec``: the ranks agree on the outcome (one message from rank 0)."""
-    from ..distributed import env_rank
+    """:func:`load_and_configure` under ``mpiexec``: rank 0 reads the scene, the ranks agree on the outcome (one
+    message from rank 0, every rank exits 2), rank 0 sends the others the run configuration and, with the petsc
+    backend, every rank its part of the model (:func:`springsim.distributed.scatter_model`); no rank keeps the
+    whole model."""
+    from ..distributed import env_rank, env_size
     from ..run.driver import check_output_path
 
     err, scene, cfg = None, None, None
-    try:
-        scene, cfg = load_and_configure(args)
-        if args.out is not None and env_rank() == 0:
-            check_output_path(args.out, suffixes=(".npz",), inputs=(args.scene,))
-    except (SpringsimError, OSError) as e:
-        err = error_text(e, args.scene)
-    err = agree(err)
+    root, many = env_rank() == 0, env_size() > 1
+    if root:  # the other ranks wait for rank 0's verdict (agree) instead of reading the file too
+        try:
+            scene, cfg = load_and_configure(args)
+            if args.out is not None:
+                check_output_path(args.out, suffixes=(".npz",), inputs=(args.scene,))
+        except (SpringsimError, OSError) as e:
+            err = error_text(e, args.scene)
+        except Exception as e:  # a bug while reading: end every rank now, they wait in agree()
+            if many:
+                abort_on_error(e)
+            raise
+    err = _verdict(err) if many else err
     if err is not None:
-        if env_rank() == 0:
+        if root:
             print(f"springsim: error: {err}", file=sys.stderr)
         raise _Exit(2)
+    try:
+        if many:
+            from ..distributed import import_petsc
+
+            _, MPI = import_petsc()
+            got = MPI.COMM_WORLD.bcast((dataclasses.replace(scene, model=None), cfg) if root else None, root=0)
+            if not root:
+                scene, cfg = got  # the scene without its model; the part comes below
+            del got
+        if cfg.backend == "petsc":
+            scene = _scene_parts(scene)
+    except SpringsimError:
+        raise
+    except Exception as e:  # one rank's own failure: end every rank now rather than leave them waiting
+        if many:
+            abort_on_error(e)
+        raise
     return scene, cfg
+
+
+def _verdict(err):
+    """Rank 0's error (None: fine), on every rank (collective; without MPI's Python module, this rank's own)."""
+    from ..distributed import import_petsc
+
+    try:
+        _, MPI = import_petsc()
+    except SpringsimError:
+        return agree(err)
+    return MPI.COMM_WORLD.bcast(err, root=0)
+
+
+def _scene_parts(scene):
+    """``scene`` with its model replaced by this rank's part (sent from rank 0, which holds the model; collective).
+    The whole model is dropped."""
+    from ..distributed import import_petsc, scatter_model
+
+    _, MPI = import_petsc()
+    comm = MPI.COMM_WORLD
+    part = scatter_model(scene.model if comm.Get_rank() == 0 else None, comm)
+    return dataclasses.replace(scene, model=part)
 
 
 def _run_petsc(args, scene, cfg) -> int:
@@ -86,7 +135,8 @@ def _run(args: argparse.Namespace) -> int:
                   file=sys.stderr)
         return 2
     scene, cfg = load_and_configure(args)
-    if cfg.backend == "petsc":
+    if cfg.backend == "petsc":  # one process: its part is the whole model, which is then dropped
+        scene = _scene_parts(scene)
         return _run_petsc(args, scene, cfg)
     if args.out is not None:  # before the run: a run is never lost to an unwritable --out
         check_output_path(args.out, suffixes=(".npz",), inputs=(args.scene,))

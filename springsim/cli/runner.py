@@ -112,7 +112,8 @@ def configured_integrator(cfg: SolverConfig, model):
         raise (SceneError(f"solver.{cfg.yaml_key(name)}", e.message) if name else e) from None
 
 
-def execute(scene, cfg, *, record: bool = True, frame_every: int = 1, progress=True, quiet: bool = False):
+def execute(scene, cfg, *, record: bool = True, frame_every: int = 1, progress=True, quiet: bool = False,
+            frames=None):
     """Run ``scene`` as configured by ``cfg``, with fixed or adaptive steps.
 
     Steps that did not meet their criteria and fallbacks are reported by the caller (from the trajectory), not
@@ -130,6 +131,8 @@ def execute(scene, cfg, *, record: bool = True, frame_every: int = 1, progress=T
         As for :func:`springsim.simulate` (default: log lines, :class:`springsim.progress.ProgressLog`).
     quiet : bool
         No warning lines (the ranks other than the root of a distributed run).
+    frames : object, optional
+        A sink for the root's frames (:func:`springsim.simulate`; the distributed run streams them to ``--out``).
 
     Returns
     -------
@@ -170,10 +173,10 @@ def execute(scene, cfg, *, record: bool = True, frame_every: int = 1, progress=T
             traj = simulate_adaptive(scene.model, integrator, steps * cfg.dt, time_rtol=rtol, time_atol=atol,
                                      frame_dt=cfg.dt * frame_every if record else None,
                                      h0=cfg.dt, h_max=cfg.max_step,  # the driver clips h0 to h_max
-                                     progress=progress)
+                                     progress=progress, frames=frames)
         else:
             traj = simulate(scene.model, integrator, cfg.dt, steps, frame_every=frame_every, record=record,
-                            progress=progress)
+                            progress=progress, frames=frames)
     for w in caught:
         if issubclass(w.category, EnergyGrowthWarning) and not quiet:
             print(f"springsim: warning: {w.message}", file=sys.stderr)

@@ -11,11 +11,13 @@ and stage failures are decided from global reductions, so every rank stops at th
 
 from __future__ import annotations
 
+import os
 import time
 
-from ..errors import SceneError
+from ..errors import SceneError, SimulationError
 from ..integrators import LinearSolveOptions, make_integrator
 from ..linsolve import DEFAULT_RTOL
+from ..io._spool import FrameSpool
 from ..run.driver import simulate
 from .system import DistributedSystem
 
@@ -29,8 +31,8 @@ def make_distributed(model, integrator: str, *, comm=None, linear_rtol: float = 
 
     Parameters
     ----------
-    model : Model
-        The same model on every rank.
+    model : Model or ScenePart
+        The same model on every rank, or this rank's part of a scene built per rank.
     integrator : str
         A name of :data:`springsim.integrators.INTEGRATORS`.
     comm : petsc4py Comm, optional
@@ -82,7 +84,7 @@ def make_distributed(model, integrator: str, *, comm=None, linear_rtol: float = 
 def simulate_distributed(model, integrator: str, dt: float, steps: int, *, comm=None, frame_every: int = 1,
                          record: bool = True, progress=None, check_energy: bool = True,
                          linear_rtol: float = DEFAULT_RTOL, linear_maxiter: int = 1000, petsc_options=None,
-                         partitioner: str = "contiguous", **options):
+                         partitioner: str = "contiguous", out=None, **options):
     """Run ``steps`` steps of ``integrator`` on every rank of ``comm`` (default ``PETSc.COMM_WORLD``).
 
     :func:`make_distributed` then :func:`springsim.simulate`; the arguments are theirs. On the root rank the
@@ -92,10 +94,16 @@ def simulate_distributed(model, integrator: str, dt: float, steps: int, *, comm=
     kept ones found stale (:attr:`DistributedSystem.pc_stats`); the other ranks return None. The distributed system
     is destroyed at the end, whatever happens.
 
+    With ``out``, the root writes every frame to that file as it is gathered (:class:`springsim.io._spool.FrameSpool`)
+    instead of holding them: the file is written atomically at the end, also when the run stops with a
+    :class:`~springsim.errors.SimulationError` (the frames so far), and the trajectory returned has ``q`` and ``qd``
+    None (``meta["out"]`` names the file).
+
     Parameters
     ----------
-    model : Model
-        The same model on every rank.
+    model : Model or ScenePart
+        The same model on every rank, or this rank's part of a scene built per rank
+        (:mod:`springsim.distributed.scene`: no rank holds the whole model).
     integrator : str
         A name of :data:`springsim.integrators.INTEGRATORS`.
     dt : float
@@ -118,6 +126,8 @@ def simulate_distributed(model, integrator: str, dt: float, steps: int, *, comm=
         PETSc options (:func:`make_distributed`).
     partitioner : str
         ``contiguous`` (default) or a graph partitioner of PETSc (``ptscotch``, ``parmetis``).
+    out : str or PathLike, optional
+        Stream the frames to this ``.npz`` (see above); default: the root's trajectory holds them.
     **options
         ``force_kernels`` and the integrator's options (:func:`make_distributed`).
 
@@ -136,16 +146,30 @@ def simulate_distributed(model, integrator: str, dt: float, steps: int, *, comm=
                              petsc_options=petsc_options, partitioner=partitioner, **options)
     init_s, init_cpu_s = time.perf_counter() - t0, time.process_time() - c0
     system = integ.system
+    spool = FrameSpool(out) if out is not None and system.is_root else None
     try:
-        traj = simulate(model, integ, dt, steps, frame_every=frame_every, record=record, progress=progress,
-                        check_energy=check_energy)
+        try:
+            traj = simulate(model, integ, dt, steps, frame_every=frame_every, record=record, progress=progress,
+                            check_energy=check_energy, frames=spool)
+        except SimulationError as e:  # the frames so far go to ``out`` too
+            if spool is not None and e.trajectory is not None:
+                e.trajectory.meta["out"] = os.fspath(out)
+                e.trajectory.save(out)
+            raise
+        finally:
+            timings = {k: float(v) for k, v in system.timings.items()}
+            pc_stats = dict(system.pc_stats)
+            system.destroy()
+        if traj is not None:
+            traj.meta["init_s"] = init_s
+            traj.meta["init_cpu_s"] = init_cpu_s
+            traj.meta["timings"] = timings
+            traj.meta["pc_stats"] = pc_stats
+            if spool is not None:
+                traj.meta["out"] = os.fspath(out)
+                traj.save(out)
+                traj.frames = None  # the spool goes below; the file holds the frames
+        return traj
     finally:
-        timings = {k: float(v) for k, v in system.timings.items()}
-        pc_stats = dict(system.pc_stats)
-        system.destroy()
-    if traj is not None:
-        traj.meta["init_s"] = init_s
-        traj.meta["init_cpu_s"] = init_cpu_s
-        traj.meta["timings"] = timings
-        traj.meta["pc_stats"] = pc_stats
-    return traj
+        if spool is not None:
+            spool.discard()

@@ -35,7 +35,8 @@ import numpy as np
 from ..forces._data import data_terms
 from ..model import Model
 
-__all__ = ["PARTITIONERS", "contiguous_offsets", "pair_families", "system_order", "LocalPart", "partition"]
+__all__ = ["PARTITIONERS", "contiguous_offsets", "pair_families", "system_order", "LocalPart", "partition",
+           "local_part"]
 
 #: How the free particles are split over the ranks: ``contiguous`` (equal blocks of the serial order), or a
 #: PETSc ``MatPartitioning`` type that partitions the particle graph (``ptscotch``, ``parmetis``: whichever the
@@ -249,26 +250,58 @@ def partition(model: Model, size: int, rank: int, offsets: np.ndarray | None = N
     free_index[free] = np.arange(free.size)
     owner = np.full(model.particle_count, -1, dtype=np.int64)  # owning rank of each free particle
     owner[free] = np.searchsorted(offsets, np.arange(free.size), side="right") - 1
-    lo, hi = int(offsets[rank]), int(offsets[rank + 1])
-    owned = free[lo:hi]
+    return local_part(model, size, rank, offsets, free_index, owner,
+                      order=None if order is None else np.asarray(order, dtype=np.int64))
 
+
+def local_part(piece: Model, size: int, rank: int, offsets: np.ndarray, free_index: np.ndarray,
+               owner: np.ndarray, *, ids: np.ndarray | None = None, order: np.ndarray | None = None) -> LocalPart:
+    """Rank ``rank``'s :class:`LocalPart` from a ``piece`` of the model that holds at least its owned particles, its
+    owned pairs and every particle they touch (the whole model, or what a rank built or received by itself).
+
+    Parameters
+    ----------
+    piece : Model
+        The piece: particles (in increasing global id) and pairs; the pairs owned by other ranks are left out.
+    size : int
+        Number of ranks.
+    rank : int
+        This rank.
+    offsets : ndarray of int, shape (size + 1,)
+        Owned block-row ranges of the ranks.
+    free_index : ndarray of int, shape (piece.particle_count,)
+        System block row of each particle of the piece, -1 for fixed ones.
+    owner : ndarray of int, shape (piece.particle_count,)
+        Owning rank of each particle of the piece, -1 for fixed ones.
+    ids : ndarray of int, shape (piece.particle_count,), optional
+        Global particle ids of the piece's particles (default: the piece is the whole model).
+    order : ndarray of int, optional
+        The graph partition's numbering, recorded in the result.
+
+    Returns
+    -------
+    LocalPart
+        Its ``local_particles`` are global ids; its ``owned_pairs`` index the piece's pair lists.
+    """
+    owned = np.flatnonzero(owner == rank)
+    owned = owned[np.argsort(free_index[owned], kind="stable")]
     owned_pairs, touched = {}, [np.zeros(0, dtype=np.int64)]
-    for prefix in pair_families(model):
-        ij = model.terms[prefix]["indices"]
+    for prefix in pair_families(piece):
+        ij = piece.terms[prefix]["indices"]
         first = np.where(owner[ij[:, 0]] >= 0, owner[ij[:, 0]], owner[ij[:, 1]]) if ij.size else np.zeros(0, int)
         sel = np.flatnonzero(first == rank)
         owned_pairs[prefix] = sel
         touched.append(ij[sel].ravel())
     touched = np.unique(np.concatenate(touched))
-    is_owned = np.zeros(model.particle_count, dtype=bool)
+    is_owned = np.zeros(piece.particle_count, dtype=bool)
     is_owned[owned] = True
     others = touched[~is_owned[touched]]
-    ghosts = others[~model.particle_fixed[others]]
+    ghosts = others[~piece.particle_fixed[others]]
     ghosts = ghosts[np.argsort(free_index[ghosts], kind="stable")]
-    fixed = others[model.particle_fixed[others]]
-    local_particles = np.concatenate([owned, ghosts, fixed]).astype(np.int64)
-    return LocalPart(rank=rank, size=size, offsets=offsets, local_particles=local_particles, n_own=int(owned.size),
-                     n_ghost=int(ghosts.size), local_to_free=free_index[local_particles], owned_pairs=owned_pairs,
-                     pair_model=_sub_model(model, local_particles, owned_pairs, keep_particle_terms=False),
-                     particle_model=_sub_model(model, owned, {}, keep_particle_terms=True),
-                     order=None if order is None else np.asarray(order, dtype=np.int64))
+    fixed = others[piece.particle_fixed[others]]
+    local = np.concatenate([owned, ghosts, fixed]).astype(np.int64)
+    return LocalPart(rank=rank, size=size, offsets=offsets, local_particles=local if ids is None else ids[local],
+                     n_own=int(owned.size), n_ghost=int(ghosts.size), local_to_free=free_index[local],
+                     owned_pairs=owned_pairs,
+                     pair_model=_sub_model(piece, local, owned_pairs, keep_particle_terms=False),
+                     particle_model=_sub_model(piece, owned, {}, keep_particle_terms=True), order=order)

@@ -14,8 +14,8 @@ vectors and the matrix have block size 3.
   blocks of the local terms into a local block-CSR matrix over owned and ghost particles (pattern
   computed once, mass on the owned diagonal only); its rows go into the PETSc AIJ matrix (block size 3)
   with ``MatSetValuesBlockedLocal`` through the local-to-global map, adding; PETSc sends the ghost rows to
-  their owners during assembly. The matrix is preallocated exactly, once, from the global pair lists, and
-  a new nonzero is an error.
+  their owners during assembly. The matrix is preallocated exactly, once, from the local pairs (the ghosts'
+  rows' entries sent to their owners, :func:`part_pattern`), and a new nonzero is an error.
 * **Solve** (:meth:`DistributedSystem.solve`): CG with GAMG by default (GMRES when the matrix is not
   symmetric), the rigid-body modes at the current positions as GAMG's near-null space, then
   ``setFromOptions``, so every ``-ksp_*``/``-pc_*`` option (command line, ``PETSC_OPTIONS``,
@@ -47,9 +47,11 @@ from ..forces import make_force_terms
 from ..linsolve import DEFAULT_RTOL, LinearSolveResult
 from ..system import System
 from ._petsc import import_petsc
-from .partition import PARTITIONERS, LocalPart, contiguous_offsets, pair_families, partition, system_order
+from .partition import PARTITIONERS, LocalPart, contiguous_offsets, pair_families, system_order
+from .scene import ScenePart, model_part, repartition
 
-__all__ = ["DistributedSystem", "GAMG_DEFAULTS", "SPRINGSIM_OPTIONS", "graph_partition", "owned_row_pattern"]
+__all__ = ["DistributedSystem", "GAMG_DEFAULTS", "SPRINGSIM_OPTIONS", "graph_partition", "owned_row_pattern",
+           "part_pattern", "graph_parts"]
 
 #: PETSc options springsim sets unless given (``--petsc-options``, ``PETSC_OPTIONS``, the command line).
 #: GAMG's Chebyshev smoothers scale an estimate of the largest eigenvalue of each level by a safety factor
@@ -118,6 +120,55 @@ def owned_row_pattern(model, lo: int, hi: int, order: np.ndarray | None = None) 
     return indptr, cols
 
 
+def part_pattern(part: LocalPart, free_count: int, mpi) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Block pattern of a rank's owned rows from its local pairs alone: ``(indptr, cols, pairs)``. Collective.
+
+    Row ``k`` holds ``k`` and every free particle paired with ``k`` (what :func:`owned_row_pattern` computes from
+    the whole model): the rank's pairs give the entries of its owned rows and of its ghosts' rows, and the latter go
+    to their owners in one all-to-all (vectorized; a loop over ranks only).
+
+    Parameters
+    ----------
+    part : LocalPart
+        The rank's part.
+    free_count : int
+        Free particles of the whole scene, F.
+    mpi : mpi4py communicator
+        The ranks.
+
+    Returns
+    -------
+    indptr : ndarray of int, shape (n_own + 1,)
+        Row pointers.
+    cols : ndarray of int
+        Block columns (system numbering), sorted within each row.
+    pairs : ndarray of int, shape (n_own,)
+        Number of pairs between each owned particle and another free particle (the graph partition's weights).
+    """
+    l2f = part.local_to_free
+    r, c = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
+    for term in pair_families(part.pair_model):
+        ij = l2f[part.pair_model.terms[term]["indices"]]
+        ij = ij[(ij[:, 0] >= 0) & (ij[:, 1] >= 0)]
+        r += [ij[:, 0], ij[:, 1]]
+        c += [ij[:, 1], ij[:, 0]]
+    rows, cols = np.concatenate(r).astype(np.int64), np.concatenate(c).astype(np.int64)
+    size = mpi.Get_size()
+    dest = np.searchsorted(part.offsets, rows, side="right") - 1
+    by = np.argsort(dest, kind="stable")
+    rows, cols, dest = rows[by], cols[by], dest[by]
+    cuts = np.searchsorted(dest, np.arange(size + 1))
+    got = mpi.alltoall([(rows[cuts[k]:cuts[k + 1]], cols[cuts[k]:cuts[k + 1]]) for k in range(size)])
+    lo, hi, F = part.lo, part.hi, int(free_count)
+    rows = np.concatenate([g[0] for g in got] + [np.zeros(0, np.int64)]) - lo
+    cols = np.concatenate([g[1] for g in got] + [np.zeros(0, np.int64)])
+    pairs = np.bincount(rows, minlength=hi - lo)
+    key = np.unique(np.concatenate([np.arange(hi - lo) * F + np.arange(lo, hi), rows * F + cols]))
+    rows, cols = key // F, key % F
+    indptr = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=hi - lo))])
+    return indptr, cols, pairs
+
+
 def _scalar_csr(indptr: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Scalar CSR (3 rows per block row, 3 columns per block) of a block pattern."""
     m = np.diff(indptr)                        # blocks per block row
@@ -174,6 +225,91 @@ def graph_partition(model, comm, method: str) -> tuple[np.ndarray, np.ndarray]:
     return order, np.concatenate([[0], np.cumsum(np.bincount(owner, minlength=size))])
 
 
+def graph_parts(part: LocalPart, free_count: int, comm, method: str, *, weights: bool = True) -> np.ndarray:
+    """The new rank of each of this rank's owned particles: PETSc's ``MatPartitioning`` of type ``method`` on the
+    distributed particle graph (an edge per pair; each rank gives its owned rows, :func:`part_pattern`), each
+    particle weighted by its pairs. Collective over ``comm``; no rank holds the whole graph.
+
+    Parameters
+    ----------
+    part : LocalPart
+        This rank's part (its owned rows are its rows of the graph).
+    free_count : int
+        Free particles of the whole scene.
+    comm : petsc4py Comm
+        The ranks; one part per rank.
+    method : str
+        A ``MatPartitioning`` type (``ptscotch``, ``parmetis``).
+    weights : bool
+        Weigh each particle by its number of pairs (at least 1), so that parts balance the pair work.
+
+    Returns
+    -------
+    ndarray of int, shape (n_own,)
+        The part (rank) of each owned particle.
+    """
+    PETSc, _ = import_petsc()
+    mpi = comm.tompi4py()
+    F = int(free_count)
+    lo, hi = part.lo, part.hi
+    indptr, cols, pairs = part_pattern(part, F, mpi)
+    rows = np.repeat(np.arange(lo, hi), np.diff(indptr))
+    off = cols != rows  # the adjacency has no diagonal
+    adj_ptr = np.concatenate([[0], np.cumsum(np.bincount(rows[off] - lo, minlength=hi - lo))])
+    adj = PETSc.Mat().createAIJ(((hi - lo, F), (hi - lo, F)), comm=comm,
+                                csr=(adj_ptr.astype(PETSc.IntType), cols[off].astype(PETSc.IntType),
+                                     np.ones(int(off.sum()))))
+    mp = PETSc.MatPartitioning().create(comm=comm)
+    try:
+        mp.setType(method)
+        mp.setAdjacency(adj)
+        if weights:
+            _set_vertex_weights(mp, np.maximum(pairs, 1))
+        mp.setFromOptions()
+        out = PETSc.IS()
+        mp.apply(out)
+        parts = np.array(out.getIndices(), dtype=np.int64)
+        out.destroy()
+    finally:
+        mp.destroy()
+        adj.destroy()
+    return parts
+
+
+def _set_vertex_weights(mp, w: np.ndarray) -> None:
+    """``MatPartitioningSetVertexWeights`` (not in petsc4py 3.18) through ctypes: PETSc takes the array and frees it
+    with ``PetscFree``, so it is allocated with PETSc's own ``PetscMallocA``."""
+    import ctypes
+
+    PETSc, _ = import_petsc()
+    lib = _petsc_library()
+    itemsize = np.dtype(PETSc.IntType).itemsize
+    ptr = ctypes.c_void_p()
+    lib.PetscMallocA.restype = ctypes.c_int
+    err = lib.PetscMallocA(ctypes.c_int(1), ctypes.c_int(0), ctypes.c_int(0), ctypes.c_char_p(b"springsim"),
+                           ctypes.c_char_p(b"system.py"), ctypes.c_size_t(max(w.size, 1) * itemsize),
+                           ctypes.byref(ptr))
+    if err:
+        raise PETSc.Error(err)
+    data = np.ascontiguousarray(w, dtype=PETSc.IntType)
+    ctypes.memmove(ptr, data.ctypes.data, data.nbytes)
+    lib.MatPartitioningSetVertexWeights.restype = ctypes.c_int
+    err = lib.MatPartitioningSetVertexWeights(ctypes.c_void_p(mp.handle), ptr)
+    if err:
+        raise PETSc.Error(err)
+
+
+def _petsc_library():
+    """The PETSc shared library petsc4py is linked to (found among the process's mappings)."""
+    import ctypes
+
+    with open("/proc/self/maps") as fh:
+        paths = {line.split()[-1] for line in fh if "libpetsc" in line and ".so" in line}
+    if not paths:
+        raise OSError("PETSc's shared library is not mapped")
+    return ctypes.CDLL(sorted(paths)[0])
+
+
 class _Operator:
     """``A @ x`` on DOF vectors for the matrix a :class:`DistributedSystem` assembled last."""
 
@@ -192,8 +328,9 @@ class DistributedSystem(System):
 
     Parameters
     ----------
-    model : Model
-        The whole model, the same on every rank.
+    model : Model or ScenePart
+        The whole model, the same on every rank; or this rank's part of a scene built per rank
+        (:mod:`springsim.distributed.scene`), where no rank holds the whole model.
     comm : petsc4py Comm, optional
         Default ``PETSc.COMM_WORLD``.
     rtol, atol, maxiter : float, float, int
@@ -207,7 +344,9 @@ class DistributedSystem(System):
     partitioner : str
         One of :data:`PARTITIONERS`: ``contiguous`` (default) keeps the serial numbering, so the gathered matrix
         is the serial one; a graph partitioner gives each rank a compact part of the particle graph (fewer
-        ghosts on scenes numbered at random) and numbers the system part by part.
+        ghosts on scenes numbered at random) and numbers the system part by part. For a scene part it runs on the
+        distributed graph (:func:`graph_parts`) and the particles and pairs then move
+        (:func:`~springsim.distributed.scene.repartition`).
     force_kernels : {"auto", "numba", "numpy"}
         Compiled force passes or the pure numpy path (:func:`springsim.forces.make_force_terms`).
 
@@ -233,16 +372,30 @@ class DistributedSystem(System):
         if partitioner not in PARTITIONERS:
             raise SceneError("partitioner", f"must be one of {', '.join(PARTITIONERS)}, got {partitioner!r:.60}")
         order = offsets = None
-        if partitioner != "contiguous":
-            try:
-                order, offsets = graph_partition(model, self.comm, partitioner)
-            except PETSc.Error as e:
-                raise SceneError("partitioner", f"PETSc's MatPartitioning {partitioner!r} failed (error code "
-                                                f"{e.ierr}); is it in this PETSc build?") from None
-        self.part: LocalPart = partition(model, self.size, self.rank, offsets=offsets, order=order)
-        self.system_particles = system_order(model, order)
+        if isinstance(model, ScenePart):  # built per rank: no rank has the whole model
+            scene = model
+            if partitioner != "contiguous":  # the distributed graph, then the particles and pairs move
+                try:
+                    parts = graph_parts(scene.part, scene.free_count, self.comm, partitioner)
+                except PETSc.Error as e:
+                    raise SceneError("partitioner", f"PETSc's MatPartitioning {partitioner!r} failed (error code "
+                                                    f"{e.ierr}); is it in this PETSc build?") from None
+                scene = repartition(scene, parts, self.mpi)
+        else:
+            if partitioner != "contiguous":
+                try:
+                    order, offsets = graph_partition(model, self.comm, partitioner)
+                except PETSc.Error as e:
+                    raise SceneError("partitioner", f"PETSc's MatPartitioning {partitioner!r} failed (error code "
+                                                    f"{e.ierr}); is it in this PETSc build?") from None
+            scene = model_part(model, self.size, self.rank, offsets=offsets, order=order)
+        #: This rank's share of the scene (:class:`~springsim.distributed.scene.ScenePart`).
+        self.scene = scene
+        #: Whether :attr:`model` is the whole Model (False: a :class:`~springsim.distributed.scene.ScenePart`).
+        self.whole_model = not isinstance(model, ScenePart)
+        self.part: LocalPart = scene.part
         p = self.part
-        self.free_count = int(model.free_count)
+        self.free_count = int(scene.free_count)
         self.rtol, self.atol, self.maxiter = float(rtol), float(atol), int(maxiter)
         self.ksp_type, self.pc_type = ksp_type, pc_type
         if petsc_options:
@@ -269,8 +422,8 @@ class DistributedSystem(System):
         self.pc_stats = dict(builds=0, reuses=0, stale=0)
 
         # local arrays (owned, ghosts, fixed); the fixed rows are constant
-        self.q_loc = np.array(model.particle_q[p.local_particles])
-        self.v_loc = np.array(model.particle_qd[p.local_particles])
+        self.q_loc = np.array(p.pair_model.particle_q)
+        self.v_loc = np.array(p.pair_model.particle_qd)
         self.v_loc[p.n_local_free:] = 0.0
         self.f_loc = np.zeros_like(self.q_loc)
         self.g_loc = np.array(self.q_loc)   # damping geometry (owned, ghosts; fixed rows constant)
@@ -278,7 +431,10 @@ class DistributedSystem(System):
         self.pair_terms = [t for t in make_force_terms(p.pair_model, kernels=force_kernels) if t.pairwise]
         self.particle_terms = [t for t in make_force_terms(p.particle_model, kernels=force_kernels) if not t.pairwise]
         self.terms = self.pair_terms + self.particle_terms
-        self.mass = np.array(model.particle_mass[p.local_particles[:p.n_own]])
+        self.mass = np.array(p.pair_model.particle_mass[:p.n_own])
+        #: per-particle terms over this rank's block of the fixed particles (their constant energy)
+        self.fixed_terms = [t for t in make_force_terms(scene.fixed_model, kernels="numpy", skip_fixed=False)
+                            if not t.pairwise]
         self.particle_mass = self.mass
         self.fixed = np.zeros(0, dtype=np.int64)  # no rank owns a fixed particle
         self.root = 0
@@ -303,7 +459,7 @@ class DistributedSystem(System):
         self.lgmap = PETSc.LGMap().create(p.local_to_free[:nlf].astype(PETSc.IntType), bsize=3, comm=self.comm)
 
         # the matrix, preallocated exactly from the global pattern of the owned rows
-        indptr, cols = owned_row_pattern(model, p.lo, p.hi, order)
+        indptr, cols = self._owned_row_pattern()
         sptr, scols = _scalar_csr(indptr, cols)
         A = PETSc.Mat().create(comm=self.comm)
         A.setSizes(((own3, F3), (own3, F3)), bsize=3)
@@ -315,6 +471,93 @@ class DistributedSystem(System):
         self._local_csr = None
         self.symmetric = True
         self.timings = dict(exchange_s=0.0, force_s=0.0, assembly_s=0.0, insert_s=0.0, setup_s=0.0, solve_s=0.0)
+        # what the root needs to gather frames: every rank's owned ids in system order, and the fixed particles
+        own_ids = self.mpi.gather(np.asarray(p.local_particles[:p.n_own], dtype=np.int64), root=self.root)
+        fixed = self.mpi.gather((scene.fixed_ids, np.asarray(scene.fixed_model.particle_q)), root=self.root)
+        #: On the root: the free particles' ids in the system's order (block row k first); None elsewhere.
+        self.system_particles = np.concatenate(own_ids) if self.is_root else None
+        self._fixed_ids = np.concatenate([f[0] for f in fixed]) if self.is_root else None
+        self._fixed_q = np.concatenate([f[1] for f in fixed]).reshape(-1, 3) if self.is_root else None
+        del own_ids, fixed
+
+    def _owned_row_pattern(self) -> tuple[np.ndarray, np.ndarray]:
+        """The block pattern of the owned rows from the local pairs (:func:`part_pattern`). Collective."""
+        return part_pattern(self.part, self.free_count, self.mpi)[:2]
+
+    def initial_state(self):
+        """This rank's state arrays at the start: the owned particles' positions [m] and velocities [m/s] (copies).
+
+        Returns
+        -------
+        q, qd : ndarray, shape (n_own, 3)
+        """
+        m = self.part.particle_model
+        return np.array(m.particle_q, dtype=np.float64), np.array(m.particle_qd, dtype=np.float64)
+
+    def energy_start(self, q_own, qd_own) -> dict:
+        """What the energy bound needs of the whole scene at the start, summed over every rank (collective).
+
+        Pairs between two fixed particles are in no rank's part: their constant energy is left out.
+
+        Parameters
+        ----------
+        q_own, qd_own : ndarray, shape (n_own, 3)
+            This rank's owned positions [m] and velocities [m/s].
+
+        Returns
+        -------
+        dict
+            ``kinetic`` [J]; ``parts``: term name -> potential energy [J] (fixed particles included);
+            ``floor``: the sum of the finite potential floors [J]; ``unbounded``: names of the terms without one;
+            ``mass`` [kg] of every particle; ``extent`` [m], the diagonal of the bounding box of every particle;
+            ``fixed_unbounded`` [J], the unbounded terms' energy of the fixed particles.
+        """
+        self.exchange(q_own, qd_own)
+        n = self.part.n_own
+        fq = np.asarray(self.scene.fixed_model.particle_q)
+        parts, floors, fixed_unb = {}, {}, 0.0
+        for t, q in ([(t, self.q_loc) for t in self.pair_terms] + [(t, self.q_loc[:n]) for t in self.particle_terms]
+                     + [(t, fq) for t in self.fixed_terms]):
+            parts[t.name] = parts.get(t.name, 0.0) + float(t.potential_energy(q))
+            floors[t.name] = floors.get(t.name, 0.0) + float(t.potential_floor())
+            if q is fq and not np.isfinite(t.potential_floor()):
+                fixed_unb += float(t.potential_energy(q))
+        pts = np.concatenate([np.asarray(q_own).reshape(-1, 3), fq])
+        box = np.concatenate([pts.min(axis=0), -pts.max(axis=0)]) if pts.size else np.full(6, np.inf)
+        box = np.ascontiguousarray(box, dtype=np.float64)
+        self.mpi.Allreduce(self.MPI.IN_PLACE, box, op=self.MPI.MIN)
+        local = dict(kinetic=0.5 * float(np.sum(self.mass[:, None] * np.asarray(qd_own) ** 2)),
+                     mass=float(self.mass.sum() + np.sum(self.scene.fixed_model.particle_mass)),
+                     fixed_unbounded=fixed_unb, parts=parts, floors=floors)
+        every = self.mpi.allgather(local)
+        out = {k: float(sum(e[k] for e in every)) for k in ("kinetic", "mass", "fixed_unbounded")}
+        names = sorted({k for e in every for k in e["parts"]})
+        out["parts"] = {k: float(sum(e["parts"].get(k, 0.0) for e in every)) for k in names}
+        fl = {k: float(sum(e["floors"].get(k, 0.0) for e in every)) for k in names}
+        out["floor"] = float(sum(v for v in fl.values() if np.isfinite(v)))
+        out["unbounded"] = [k for k in names if not np.isfinite(fl[k])]
+        out["extent"] = float(np.linalg.norm(-box[3:] - box[:3])) if np.all(np.isfinite(box)) else 0.0
+        return out
+
+    def frame_energy(self, q_own, qd_own) -> float:
+        """Kinetic plus potential energy [J] of the whole scene at a state, but the constant energy of pairs between
+        fixed particles (collective); the energy-growth check compares frames with it.
+
+        Parameters
+        ----------
+        q_own, qd_own : ndarray, shape (n_own, 3)
+            This rank's owned positions [m] and velocities [m/s].
+
+        Returns
+        -------
+        float
+            The energy [J], the same on every rank.
+        """
+        self.exchange(q_own)
+        fq = np.asarray(self.scene.fixed_model.particle_q)
+        local = (self._local_potential(self.q_loc) + 0.5 * float(np.sum(self.mass[:, None] * np.asarray(qd_own) ** 2))
+                 + sum(float(t.potential_energy(fq)) for t in self.fixed_terms if t.conservative))
+        return self.sum(local)
 
     # -- options ------------------------------------------------------------------------------------------------
     def insert_options(self, options) -> None:
@@ -739,11 +982,13 @@ class DistributedSystem(System):
         """
         counts = self.mpi.gather(3 * q_own.shape[0], root=root)
         out = []
-        for own, init in ((q_own, self.model.particle_q), (v_own, None)):
+        for own, init in ((q_own, True), (v_own, False)):
             if self.rank == root:
                 buf = np.empty(3 * self.free_count)
                 self.mpi.Gatherv(np.ascontiguousarray(own).ravel(), (buf, counts), root=root)
-                full = np.array(init) if init is not None else np.zeros((self.model.particle_count, 3))
+                full = np.zeros((self.scene.particle_count, 3))
+                if init:
+                    full[self._fixed_ids] = self._fixed_q
                 full[self.system_particles] = buf.reshape(-1, 3)
                 out.append(full)
             else:

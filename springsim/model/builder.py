@@ -24,7 +24,8 @@ from ..forces.gravitational import SOFTENING_PRECISION, SOFTENING_TIME, default_
 from .model import AXES, ClothGrid, Model
 from .topology import PLANES, cloth_grid_pairs, cloth_pin_mask, index_mask
 
-__all__ = ["COEFFICIENT_ALIASES", "SOFTENING_PRECISION", "SOFTENING_TIME", "ModelBuilder", "default_softening"]
+__all__ = ["COEFFICIENT_ALIASES", "SOFTENING_PRECISION", "SOFTENING_TIME", "ModelBuilder", "cloth_grid_positions",
+           "default_softening", "resolve_cloth_grid"]
 
 #: Alias -> canonical name of the spring coefficients. The assignment's ``stiffness`` and ``damping`` are
 #: canonical (``Model.spring_stiffness``, the YAML ``springs:`` keys); ``ke``/``kd`` and their suffixed forms
@@ -564,55 +565,20 @@ class ModelBuilder:
             An invalid argument (``SceneTypeError`` for one of the wrong type), with the path
             ``cloth.<argument>``; nothing is added then.
         """
-        nx = _integer("cloth.nx", nx, 2)
-        ny = _integer("cloth.ny", ny, 2)
-        if plane not in PLANES:
-            raise SceneError("cloth.plane", f"must be one of {', '.join(PLANES)}, got {plane!r:.60}")
-        if not isinstance(bending, (bool, np.bool_)):
-            raise SceneTypeError("cloth.bending", f"must be True or False, got {bending!r:.60}")
-        o = _vector("cloth.origin", origin, 3)
-        if spacing is not None and size is not None:
-            raise SceneError("cloth", "give spacing or size, not both")
-        if mass is not None and total_mass is not None:
-            raise SceneError("cloth", "give mass or total_mass, not both")
-        if spacing is not None:
-            dx = dy = _number("cloth.spacing", spacing, lo=0.0, strict=True)
-        else:
-            sx, sy = (1.0, 1.0) if size is None else _vector("cloth.size", size, 2, lo=0.0, strict=True)
-            dx, dy = sx / (nx - 1), sy / (ny - 1)
-        if mass is not None:
-            m = _number("cloth.mass", mass, lo=0.0, strict=True)
-        else:
-            total = 1.0 if total_mass is None else _number("cloth.total_mass", total_mass, lo=0.0, strict=True)
-            m = total / (nx * ny)
-        drag = _number("cloth.drag", drag, lo=0.0)
-        given = unalias("cloth", {
-            "stiffness": stiffness, "ke": ke, "damping": damping, "kd": kd, "stiffness_y": stiffness_y,
-            "ke_y": ke_y, "damping_y": damping_y, "kd_y": kd_y, "stiffness_shear": stiffness_shear,
-            "ke_shear": ke_shear, "damping_shear": damping_shear, "kd_shear": kd_shear,
-            "stiffness_bend": stiffness_bend, "ke_bend": ke_bend, "damping_bend": damping_bend, "kd_bend": kd_bend})
-        k = {name: None if v is None else _number(f"cloth.{spelled}", v, lo=0.0)
-             for name, (v, spelled) in given.items()}
-        ke_ = 1e4 if k["stiffness"] is None else k["stiffness"]
-        kd_ = 0.0 if k["damping"] is None else k["damping"]
-
-        ii, jj = np.meshgrid(np.arange(nx, dtype=np.float64), np.arange(ny, dtype=np.float64))
-        pos = np.tile(np.asarray(o), (nx * ny, 1))
-        a, b = PLANES[plane]
-        pos[:, a] += ii.ravel() * dx
-        pos[:, b] += jj.ravel() * dy
+        c = resolve_cloth_grid(nx, ny, origin=origin, spacing=spacing, size=size, plane=plane, mass=mass,
+                               total_mass=total_mass, drag=drag, stiffness=stiffness, damping=damping,
+                               stiffness_y=stiffness_y, damping_y=damping_y, stiffness_shear=stiffness_shear,
+                               damping_shear=damping_shear, bending=bending, stiffness_bend=stiffness_bend,
+                               damping_bend=damping_bend, ke=ke, kd=kd, ke_y=ke_y, kd_y=kd_y, ke_shear=ke_shear,
+                               kd_shear=kd_shear, ke_bend=ke_bend, kd_bend=kd_bend)
+        nx, ny = c["nx"], c["ny"]
+        pos = cloth_grid_positions(c, 0, ny)
         fixed = cloth_pin_mask(nx, ny, pin, positions=pos, path="cloth.pin")
-        particles = self.add_particles(pos, None, m, drag=drag, fixed=fixed)
+        particles = self.add_particles(pos, None, c["mass"], drag=c["drag"], fixed=fixed)
         off = particles.start
-        topo = cloth_grid_pairs(nx, ny, bending=bool(bending))
-        self.add_springs(topo["structural_x"] + off, ke_, kd_)
-        self.add_springs(topo["structural_y"] + off, ke_ if k["stiffness_y"] is None else k["stiffness_y"],
-                         kd_ if k["damping_y"] is None else k["damping_y"])
-        self.add_springs(topo["shear"] + off, ke_ if k["stiffness_shear"] is None else k["stiffness_shear"],
-                         kd_ if k["damping_shear"] is None else k["damping_shear"])
-        if bending:
-            self.add_springs(topo["bending"] + off, 1e2 if k["stiffness_bend"] is None else k["stiffness_bend"],
-                             0.0 if k["damping_bend"] is None else k["damping_bend"])
+        topo = cloth_grid_pairs(nx, ny, bending=c["bending"])
+        for family, (ke_, kd_) in c["springs"].items():
+            self.add_springs(topo[family] + off, ke_, kd_)
         self._cloth_grids.append(ClothGrid(off, nx, ny))
         return particles
 
@@ -815,6 +781,111 @@ class ModelBuilder:
             terms=terms, gravity=gravity, up_axis=int(up), pair_epsilon=eps, cloth_grids=tuple(self._cloth_grids),
             metadata=dict(self.metadata),
         )
+
+
+def resolve_cloth_grid(nx, ny, *, origin=(0.0, 0.0, 0.0), spacing=None, size=None, plane="xy", mass=None,
+                       total_mass=None, drag=0.0, stiffness=None, damping=None, stiffness_y=None, damping_y=None,
+                       stiffness_shear=None, damping_shear=None, bending=True, stiffness_bend=None,
+                       damping_bend=None, ke=None, kd=None, ke_y=None, kd_y=None, ke_shear=None, kd_shear=None,
+                       ke_bend=None, kd_bend=None) -> dict:
+    """The validated values of a cloth grid (:meth:`ModelBuilder.add_cloth_grid`'s arguments but ``pin``).
+
+    Shared by :meth:`ModelBuilder.add_cloth_grid` and the distributed generator
+    (:mod:`springsim.distributed.scene`), which builds a rank's rows of the grid only: both take every value
+    from here, so they make the same particles and springs to the last bit.
+
+    Parameters
+    ----------
+    nx, ny : int
+        Particles along the first and second in-plane axis (>= 2).
+    origin, spacing, size, plane, mass, total_mass, drag : see :meth:`ModelBuilder.add_cloth_grid`
+        The grid's geometry, masses and drag.
+    stiffness, damping, stiffness_y, damping_y, stiffness_shear, damping_shear : float, optional
+        The structural and shear springs' coefficients (:meth:`ModelBuilder.add_cloth_grid`).
+    bending, stiffness_bend, damping_bend : bool, float, float
+        The bending springs.
+    ke, kd, ke_y, kd_y, ke_shear, kd_shear, ke_bend, kd_bend : float, optional
+        Aliases (:data:`COEFFICIENT_ALIASES`).
+
+    Returns
+    -------
+    dict
+        ``nx``, ``ny``, ``origin`` (3 floats), ``dx``, ``dy``, ``axes`` (the plane's two axes), ``mass`` (per
+        particle), ``drag``, ``bending`` and ``springs``: family of :func:`~springsim.model.topology.cloth_grid_pairs`
+        -> ``(stiffness, damping)``, in the order the springs are added.
+
+    Raises
+    ------
+    SceneError
+        An invalid argument, with the path ``cloth.<argument>``.
+    """
+    nx = _integer("cloth.nx", nx, 2)
+    ny = _integer("cloth.ny", ny, 2)
+    if plane not in PLANES:
+        raise SceneError("cloth.plane", f"must be one of {', '.join(PLANES)}, got {plane!r:.60}")
+    if not isinstance(bending, (bool, np.bool_)):
+        raise SceneTypeError("cloth.bending", f"must be True or False, got {bending!r:.60}")
+    o = _vector("cloth.origin", origin, 3)
+    if spacing is not None and size is not None:
+        raise SceneError("cloth", "give spacing or size, not both")
+    if mass is not None and total_mass is not None:
+        raise SceneError("cloth", "give mass or total_mass, not both")
+    if spacing is not None:
+        dx = dy = _number("cloth.spacing", spacing, lo=0.0, strict=True)
+    else:
+        sx, sy = (1.0, 1.0) if size is None else _vector("cloth.size", size, 2, lo=0.0, strict=True)
+        dx, dy = sx / (nx - 1), sy / (ny - 1)
+    if mass is not None:
+        m = _number("cloth.mass", mass, lo=0.0, strict=True)
+    else:
+        total = 1.0 if total_mass is None else _number("cloth.total_mass", total_mass, lo=0.0, strict=True)
+        m = total / (nx * ny)
+    drag = _number("cloth.drag", drag, lo=0.0)
+    given = unalias("cloth", {
+        "stiffness": stiffness, "ke": ke, "damping": damping, "kd": kd, "stiffness_y": stiffness_y,
+        "ke_y": ke_y, "damping_y": damping_y, "kd_y": kd_y, "stiffness_shear": stiffness_shear,
+        "ke_shear": ke_shear, "damping_shear": damping_shear, "kd_shear": kd_shear,
+        "stiffness_bend": stiffness_bend, "ke_bend": ke_bend, "damping_bend": damping_bend, "kd_bend": kd_bend})
+    k = {name: None if v is None else _number(f"cloth.{spelled}", v, lo=0.0)
+         for name, (v, spelled) in given.items()}
+    ke_ = 1e4 if k["stiffness"] is None else k["stiffness"]
+    kd_ = 0.0 if k["damping"] is None else k["damping"]
+
+    springs = {"structural_x": (ke_, kd_),
+               "structural_y": (ke_ if k["stiffness_y"] is None else k["stiffness_y"],
+                                kd_ if k["damping_y"] is None else k["damping_y"]),
+               "shear": (ke_ if k["stiffness_shear"] is None else k["stiffness_shear"],
+                         kd_ if k["damping_shear"] is None else k["damping_shear"])}
+    if bending:
+        springs["bending"] = (1e2 if k["stiffness_bend"] is None else k["stiffness_bend"],
+                              0.0 if k["damping_bend"] is None else k["damping_bend"])
+    return {"nx": nx, "ny": ny, "origin": o, "dx": dx, "dy": dy, "axes": PLANES[plane], "mass": m, "drag": drag,
+            "bending": bool(bending), "springs": springs}
+
+
+def cloth_grid_positions(grid: dict, j0: int, j1: int) -> np.ndarray:
+    """Positions [m] of the rows ``j0 .. j1`` (exclusive) of a cloth grid resolved by :func:`resolve_cloth_grid`,
+    particle ``(i, j)`` at row ``j - j0``, column ``i``: the same values, to the last bit, for any row range.
+
+    Parameters
+    ----------
+    grid : dict
+        What :func:`resolve_cloth_grid` returned.
+    j0, j1 : int
+        The rows, ``0 <= j0 <= j1 <= ny``.
+
+    Returns
+    -------
+    ndarray, shape ((j1 - j0) * nx, 3)
+        The positions, row-major.
+    """
+    nx = grid["nx"]
+    ii, jj = np.meshgrid(np.arange(nx, dtype=np.float64), np.arange(j0, j1, dtype=np.float64))
+    pos = np.tile(np.asarray(grid["origin"]), (nx * (j1 - j0), 1))
+    a, b = grid["axes"]
+    pos[:, a] += ii.ravel() * grid["dx"]
+    pos[:, b] += jj.ravel() * grid["dy"]
+    return pos
 
 
 def _number(path: str, v, *, lo: float | None = None, strict: bool = False) -> float:

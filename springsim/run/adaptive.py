@@ -323,7 +323,7 @@ def simulate_adaptive(model: Model, integrator: str | Integrator, t_end: float, 
                       state: State | None = None, safety: float = StepSizeController.SAFETY,
                       grow: float = StepSizeController.GROW, shrink: float = StepSizeController.SHRINK,
                       max_steps: int = 1_000_000, progress: Callable[[float, float], None] | bool | None = None,
-                      **integrator_options) -> Trajectory:
+                      frames=None, **integrator_options) -> Trajectory:
     """Integrate to ``t_end`` with step sizes chosen from a local error estimate.
 
     The loop: take a step, measure its error, let a :class:`StepSizeController` accept or
@@ -362,6 +362,8 @@ def simulate_adaptive(model: Model, integrator: str | Integrator, t_end: float, 
     progress : callable(t, t_end) or True, optional
         Called after each accepted step; True logs a line every few seconds with the time left
         (:class:`springsim.progress.ProgressLog`, logger ``springsim``).
+    frames : object, optional
+        A sink for the root's frames (:func:`springsim.simulate`): the trajectory then holds none.
     **integrator_options
         Passed to :func:`~springsim.integrators.make_integrator` when ``integrator`` is a name
         (``solver``, ``jacobian``, ``newton_tol``, ...).
@@ -402,7 +404,7 @@ def simulate_adaptive(model: Model, integrator: str | Integrator, t_end: float, 
     system = integrator.system
     fixed = system.fixed
 
-    run = RunRecorder(model, integrator, state)
+    run = RunRecorder(model, integrator, state, frames=frames)
     if not run.is_root:
         progress = None
     run.meta.update(t_end=t_end, time_rtol=float(time_rtol), time_atol=float(time_atol))

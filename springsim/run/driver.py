@@ -83,6 +83,9 @@ class Trajectory:
         ``steps``, ``frame_every`` for fixed steps or ``t_end``, ``time_rtol``, ``time_atol`` for
         adaptive runs; the command line adds ``scene_sha256`` (of the scene file). Empty for
         trajectories made by hand.
+    frames : object or None
+        Where the frames are when ``q`` and ``qd`` are None: the sink they were streamed to
+        (:class:`springsim.io._spool.FrameSpool`), which :meth:`save` writes out.
     """
 
     t: np.ndarray
@@ -93,6 +96,7 @@ class Trajectory:
     cpu_s: float = 0.0
     adaptive_stats: dict | None = None
     meta: dict = field(default_factory=dict)
+    frames: object = None
 
     @property
     def frame_count(self) -> int:
@@ -130,6 +134,9 @@ class Trajectory:
             Writing failed (full disk, permissions); the target is unchanged.
         """
         meta = {**self.meta, "format": TRAJECTORY_FORMAT, "format_version": TRAJECTORY_FORMAT_VERSION}
+        if self.q is None and self.frames is not None:  # streamed: written from the sink, a frame at a time
+            self.frames.finish(self.t, meta, path)
+            return
         save_npz_atomic(path, t=self.t, q=self.q, qd=self.qd, meta=np.array(json.dumps(meta, sort_keys=True)))
 
     @classmethod
@@ -313,22 +320,43 @@ class RunRecorder:
         Initial state (copied and converted to float64), default ``model.state()``.
     check_energy : bool
         Apply the energy bound of :class:`springsim.run.energy.EnergyBound` after every step.
+    frames : object, optional
+        The root's frame sink (:func:`simulate`); default: the frames are kept in memory.
     """
 
-    def __init__(self, model, integrator, state=None, *, check_energy: bool = True):
+    def __init__(self, model, integrator, state=None, *, check_energy: bool = True, frames=None):
         _check_integrator(model, integrator)
         self.model = model
         self.integrator = integrator
         self.system = system = integrator.system
-        full = _as_state(model, state)
-        # the state after the last completed step, as the system's state arrays (every particle serially)
-        self.state = State(*system.local_state(full.particle_q, full.particle_qd))
-        self.scratch = self.state.copy()      # the integrator writes the next state here
-        self.bound = EnergyBound(model, full.particle_q, full.particle_qd, system=system) if check_energy else None
         self.is_root = system.is_root
+        #: where the root's frames go: None keeps them in :attr:`q` and :attr:`qd`; else an object whose
+        #: ``append(q, qd)`` takes each gathered frame (:class:`springsim.io._spool.FrameSpool` streams them to a file)
+        self.frames = frames if self.is_root else None
+        #: the total energy of every frame, computed as it is recorded when the system holds no whole model
+        self.energies = None if system.whole_model else []
         self.t = [0.0]
-        self.q = [full.particle_q.copy()] if self.is_root else []
-        self.qd = [full.particle_qd.copy()] if self.is_root else []
+        self.q, self.qd = [], []
+        if system.whole_model:
+            full = _as_state(model, state)
+            # the state after the last completed step, as the system's state arrays (every particle serially)
+            self.state = State(*system.local_state(full.particle_q, full.particle_qd))
+            self.bound = EnergyBound(model, full.particle_q, full.particle_qd, system=system) if check_energy else None
+            first = (full.particle_q.copy(), full.particle_qd.copy()) if self.is_root else (None, None)
+            del full
+        else:  # a scene built per rank: the start is the system's own; the root gathers the first frame
+            if state is not None:
+                raise ValueError("state must be None for a distributed scene built per rank (its parts hold the "
+                                 "initial state)")
+            self.state = State(*system.initial_state())
+            self.bound = (EnergyBound(model, self.state.particle_q, self.state.particle_qd, system=system)
+                          if check_energy else None)
+            first = system.gather_state(self.state.particle_q, self.state.particle_qd)
+            self.energies.append(system.frame_energy(self.state.particle_q, self.state.particle_qd))
+        self.scratch = self.state.copy()      # the integrator writes the next state here
+        if self.is_root:
+            self._keep(*first)
+        del first
         self.stats: list[StepStats] = []
         self.time = 0.0        # simulated time of ``state``
         self.recorded = True   # whether ``state`` is the last frame
@@ -337,6 +365,14 @@ class RunRecorder:
         self._cpu0 = time.process_time()
         self.adaptive_stats: dict | None = None
         self.meta = run_metadata(model, integrator)
+
+    def _keep(self, q, qd) -> None:
+        """A gathered frame on the root: into the frame sink, or kept."""
+        if self.frames is not None:
+            self.frames.append(q, qd)
+        else:
+            self.q.append(q)
+            self.qd.append(qd)
 
     def add_frame(self, t: float, q: np.ndarray, qd: np.ndarray) -> None:
         """Record a frame of state arrays (gathered on the root process, copied). Collective.
@@ -348,11 +384,12 @@ class RunRecorder:
         q, qd : ndarray, shape (n, 3)
             Positions [m] and velocities [m/s] (state arrays of the system).
         """
+        if self.energies is not None:
+            self.energies.append(self.system.frame_energy(q, qd))
         q, qd = self.system.gather_state(q, qd)
         self.t.append(float(t))
         if self.is_root:
-            self.q.append(q)
-            self.qd.append(qd)
+            self._keep(q, qd)
 
     def trajectory(self, keep_last: bool = False) -> Trajectory | None:
         """The frames so far (None on processes other than the root); ``keep_last`` adds the last completed state
@@ -377,9 +414,12 @@ class RunRecorder:
         timings = getattr(self.system, "timings", None)  # a distributed system's time per phase [s]
         if timings:
             meta["timings"] = {k: float(v) for k, v in timings.items()}
-        return Trajectory(np.array(self.t), np.array(self.q), np.array(self.qd), self.stats,
+        streamed = self.frames is not None  # the frames are in the sink: the trajectory has none
+        return Trajectory(np.array(self.t), None if streamed else np.array(self.q),
+                          None if streamed else np.array(self.qd), self.stats,
                           time.perf_counter() - self._wall0, time.process_time() - self._cpu0,
-                          None if self.adaptive_stats is None else dict(self.adaptive_stats), meta)
+                          None if self.adaptive_stats is None else dict(self.adaptive_stats), meta,
+                          self.frames if streamed else None)
 
     def kept(self) -> str:
         """What a failed run keeps, for its error message: ``"kept 12 finite frame(s) up to t=0.5 s"``.
@@ -541,7 +581,7 @@ class RunRecorder:
             return
         from .energy import total_energy
 
-        energy = total_energy(self.model, traj.q, traj.qd)
+        energy = np.array(self.energies) if self.energies is not None else total_energy(self.model, traj.q, traj.qd)
         rise = energy - energy[0]
         k = int(np.argmax(rise))
         if not rise[k] > ENERGY_GROWTH * self.bound.scale:
@@ -588,7 +628,7 @@ def report(traj: Trajectory, integrator, stacklevel: int = 2) -> None:
 
 def simulate(model: Model, integrator: Integrator, dt: float, steps: int, *, state: State | None = None,
              frame_every: int = 1, record: bool = True, progress: Callable[[int, int], None] | bool | None = None,
-             check_energy: bool = True) -> Trajectory:
+             check_energy: bool = True, frames=None) -> Trajectory:
     """Run ``steps`` steps of size ``dt`` [s] and return the :class:`Trajectory`.
 
     Parameters
@@ -611,6 +651,10 @@ def simulate(model: Model, integrator: Integrator, dt: float, steps: int, *, sta
         (:class:`springsim.progress.ProgressLog`, logger ``springsim``).
     check_energy : bool
         Stop when a finite state holds more energy than the forces can supply (module docstring).
+    frames : object, optional
+        A sink for the frames on the root process: its ``append(q, qd)`` takes each one as it is recorded
+        (:class:`springsim.io._spool.FrameSpool` streams them to a file), and the trajectory then holds none (``q`` and
+        ``qd`` None). Default: the trajectory holds them.
 
     Returns
     -------
@@ -633,12 +677,12 @@ def simulate(model: Model, integrator: Integrator, dt: float, steps: int, *, sta
     frame_every = _count("frame_every", frame_every, 1)
     _check_integrator(model, integrator)
     with integrator.exclusive():  # one thread at a time: an integrator keeps state between steps
-        return _simulate(model, integrator, dt, steps, state, frame_every, record, progress, check_energy)
+        return _simulate(model, integrator, dt, steps, state, frame_every, record, progress, check_energy, frames)
 
 
-def _simulate(model, integrator, dt, steps, state, frame_every, record, progress, check_energy):
+def _simulate(model, integrator, dt, steps, state, frame_every, record, progress, check_energy, frames=None):
     """:func:`simulate` once its arguments are checked and the integrator is held."""
-    run = RunRecorder(model, integrator, state, check_energy=check_energy)
+    run = RunRecorder(model, integrator, state, check_energy=check_energy, frames=frames)
     progress = as_progress(progress) if run.is_root else None
     run.meta.update(dt=dt, steps=steps, frame_every=frame_every)
     k = 0

@@ -110,6 +110,9 @@ class EnergyBound:
     """
 
     def __init__(self, model, q0: np.ndarray, qd0: np.ndarray, *, growth: float = 10.0, system=None):
+        if system is not None and not getattr(system, "whole_model", True):
+            self._from_system(system, q0, qd0, growth)
+            return
         terms = make_force_terms(model, skip_fixed=False)
         floors = [t.potential_floor() for t in terms]
         # terms without a finite lower bound (uniform gravity) are evaluated every step, in W
@@ -139,6 +142,21 @@ class EnergyBound:
                 fixed = model.particle_fixed[:, None]
                 full = [t for t, f in zip(terms, floors) if not np.isfinite(f)]
                 self._offset = float(sum(t.potential_energy(np.where(fixed, q0, 0.0)) for t in full))
+
+    def _from_system(self, system, q0, qd0, growth: float) -> None:
+        """The bound of a system that holds no whole model (a distributed scene built per rank): its sums over every
+        process (:meth:`springsim.distributed.DistributedSystem.energy_start`) instead of the model's terms."""
+        s = system.energy_start(q0, qd0)
+        parts = list(s["parts"].values())
+        self.e0 = s["kinetic"] + sum(parts)
+        self.w_max = self.e0 - s["floor"]
+        self.scale = (abs(self.e0) + s["kinetic"] + sum(abs(p) for p in parts) - s["floor"]
+                      + s["mass"] * abs(system.model.gravity) * max(s["extent"], 1.0))
+        self.limit = self.w_max + growth * self.scale
+        self._system, self._offset = system, s["fixed_unbounded"]
+        self._unbounded = [t for t in system.terms if not t.pairwise and not np.isfinite(t.potential_floor())]
+        self._sqrt_mass = np.repeat(np.sqrt(system.particle_mass), 3).reshape(-1, 3)
+        self._scaled = np.empty_like(self._sqrt_mass)
 
     def work(self, q: np.ndarray, qd: np.ndarray) -> float:
         """``W = T + V_gravity`` [J] of a state (the state arrays of ``system`` when one was given).

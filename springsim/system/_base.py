@@ -51,6 +51,11 @@ class System(ABC):
     model = None
     #: Whether the fixed particles are rows of the state arrays (serially) or not (distributed).
     holds_fixed: bool = True
+    #: Whether :attr:`model` is the whole Model. A distributed system built from a rank's share of a scene
+    #: (:class:`springsim.distributed.scene.ScenePart`) has no whole model anywhere: it then provides
+    #: ``initial_state()`` (its state arrays at the start), ``energy_start(q, qd)`` (the energy bound's sums) and
+    #: ``frame_energy(q, qd)`` (a frame's total energy, for the growth check), and the driver uses them.
+    whole_model: bool = True
     terms: list = []
     particle_mass: np.ndarray
     fixed: np.ndarray

@@ -239,6 +239,85 @@ def linear_group(scene, out):
             json.dump(report, fh)
     return 0
 
+
+def built_per_rank(kind, integrator, steps, out, partitioner="contiguous"):
+    """A scene no rank holds whole (``cloth``: the benchmark cloth generated per rank; ``scattered``: the irregular
+    scene read on rank 0 and scattered), run and streamed to ``out`` by the root; also the replicated model's run
+    (``out`` + ``.ref.npz``) for comparison."""
+    from springsim.distributed import (benchmark_cloth_part, import_petsc, scatter_model, simulate_distributed)
+    from springsim.scene import benchmark_cloth
+
+    from .scenes import scene as make
+
+    _, MPI = import_petsc()
+    comm = MPI.COMM_WORLD
+    opts = dict(linear_rtol=1e-10, on_nonconvergence="ignore")
+    explicit = integrator in ("explicit_euler", "symplectic_euler", "midpoint")
+    if not explicit:
+        opts.update(jacobian="spd", **STAGE_TOLERANCE.get(integrator, {}))
+    if kind == "cloth":
+        whole, part = benchmark_cloth(10, kd=0.1), benchmark_cloth_part(10, comm.size, comm.rank, kd=0.1)
+    else:
+        whole = make("irregular")
+        part = scatter_model(whole if comm.rank == 0 else None, comm)
+    dt = 1e-3 if explicit else 1 / 60 if kind == "cloth" else 0.01
+    traj = simulate_distributed(part, integrator, dt, int(steps), partitioner=partitioner, out=out, **opts)
+    ref = simulate_distributed(whole, integrator, dt, int(steps), **opts)
+    if comm.rank == 0:
+        assert traj.q is None and traj.meta["out"] == out, traj.meta.get("out")
+        np.savez(out + ".ref.npz", q=ref.q, qd=ref.qd, newton=[s.newton_iterations for s in ref.stats],
+                 fingerprint=str(ref.meta["model_fingerprint"]), ranks=comm.size,
+                 part_fingerprint=str(traj.meta["model_fingerprint"]))
+    return 0
+
+
+def stopped_streamed(out):
+    """A run that blows up (explicit Euler, a step far too large) with its frames streamed: the frames so far are in
+    ``out`` and every rank raises the same SimulationError."""
+    from springsim.distributed import benchmark_cloth_part, import_petsc, simulate_distributed
+    from springsim.errors import SimulationError
+
+    _, MPI = import_petsc()
+    comm = MPI.COMM_WORLD
+    try:
+        simulate_distributed(benchmark_cloth_part(8, comm.size, comm.rank), "explicit_euler", 0.05, 50, out=out)
+    except SimulationError as e:
+        print(f"rank {comm.rank}: stopped at step {e.step}", flush=True)
+        return 0
+    return 1
+
+
+def weighted_partition(out):
+    """PT-Scotch on the distributed graph of a cloth whose upper half has 20 extra springs per particle, with and
+    without weighing the particles by their pairs: particles and pair ends per part (rank 0 writes JSON)."""
+    import json
+
+    from springsim import ModelBuilder
+    from springsim.distributed import import_petsc, scatter_model
+    from springsim.distributed.system import graph_parts, part_pattern
+
+    PETSc, MPI = import_petsc()
+    comm = MPI.COMM_WORLD
+    model = None
+    if comm.rank == 0:
+        b = ModelBuilder()
+        b.add_cloth_grid(20, 20, pin="none")
+        i = np.repeat(np.arange(200, 400), 20)
+        j = np.clip(i + np.random.default_rng(0).integers(-40, 40, i.size), 200, 399)
+        b.add_springs(np.stack([i[i != j], j[i != j]], axis=1), 10.0, 0.0)
+        model = b.finalize()
+    part = scatter_model(model, comm)
+    report = {}
+    for weights in (False, True):
+        parts = graph_parts(part.part, part.free_count, PETSc.COMM_WORLD, "ptscotch", weights=weights)
+        pairs = part_pattern(part.part, part.free_count, comm)[2]
+        report[str(weights)] = [comm.allreduce(np.bincount(parts, minlength=comm.size)).tolist(),
+                                comm.allreduce(np.bincount(parts, weights=pairs, minlength=comm.size)).tolist()]
+    if comm.rank == 0:
+        with open(out, "w") as fh:
+            json.dump(report, fh)
+    return 0
+
 if __name__ == "__main__":
     case, *args = sys.argv[1:]
     sys.exit(globals()[case](*args))

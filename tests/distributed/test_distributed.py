@@ -288,8 +288,8 @@ def test_eisenstat_walker_forcing_matches_serial(tmp_path):
 
 @needs_petsc
 def test_cli_two_ranks_matches_serial_run(tmp_path):
-    """``mpiexec -n 2 springsim run --backend petsc --out``: rank 0 alone prints and writes, the frames match a
-    serial run of the same scene (linearized implicit Euler, AMG-CG against KSP CG + GAMG, both at rtol 1e-10)."""
+    """``mpiexec -n 2 springsim run --backend petsc --out``: rank 0 alone reads, prints and writes (the frames
+    streamed), the frames match a serial run of the same scene (linearized implicit Euler, AMG-CG against KSP CG + GAMG, both at rtol 1e-10)."""
     from springsim.cli import main
 
     scene_path = tmp_path / "cloth.yaml"
@@ -298,6 +298,7 @@ def test_cli_two_ranks_matches_serial_run(tmp_path):
     out = tmp_path / "d.npz"
     r = mpirun(2, [sys.executable, "-m", "springsim", "run", str(scene_path), "--backend", "petsc", "--out", str(out)])
     assert r.stdout.count("backend:") == 1 and "petsc, 2 MPI rank(s)" in r.stdout
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cloth.yaml", "d.npz"]  # streamed: no spool left
     assert re.search(r"failed steps:\s+0 ", r.stdout)
     assert main(["run", str(scene_path), "--out", str(tmp_path / "s.npz"), "-q"]) == 0
     d, s = np.load(out), np.load(tmp_path / "s.npz")
@@ -482,3 +483,111 @@ def test_partitioner_option(capsys):
     assert "argument --partitioner: invalid choice: 'metis'" in capsys.readouterr().err
     assert main(["run", cloth, "--steps", "1", "--partitioner", "ptscotch", "-q"]) == 0
     assert "does not use partitioner" in capsys.readouterr().err
+
+
+# -- scenes built per rank, frames streamed ---------------------------------------------------------------------------
+PINS = ["edge", "ends", "none", ["left", {"box": [[0.0, 0.0, 0.0], [0.5, 0.25, 0.0]]}], {"i": 3, "j": 4}]
+
+
+@pytest.mark.parametrize("pin", PINS)
+@pytest.mark.parametrize("size", [1, 2, 3, 5])
+def test_cloth_built_per_rank_is_the_models_part(pin, size):
+    """A rank's generated rows of the cloth are its part of the whole model, to the last bit: the same particles,
+    ghosts, owned springs (same order and values), per-particle data and block of the fixed particles."""
+    from springsim.distributed import benchmark_cloth_part, model_part
+    from springsim.scene import benchmark_cloth
+
+    model = benchmark_cloth(9, kd=0.2, pin=pin)
+    for rank in range(size):
+        a, b = benchmark_cloth_part(9, size, rank, kd=0.2, pin=pin), model_part(model, size, rank)
+        pa, pb = a.part, b.part
+        assert (pa.n_own, pa.n_ghost) == (pb.n_own, pb.n_ghost)
+        assert np.array_equal(pa.local_particles, pb.local_particles)
+        assert np.array_equal(pa.local_to_free, pb.local_to_free)
+        assert pa.pair_model.fingerprint() == pb.pair_model.fingerprint()
+        assert pa.particle_model.fingerprint() == pb.particle_model.fingerprint()
+        assert a.fixed_model.fingerprint() == b.fixed_model.fingerprint()
+        assert np.array_equal(a.fixed_ids, b.fixed_ids)
+        assert (a.particle_count, a.free_count, a.damped, a.spring_count) == (
+            b.particle_count, b.free_count, b.damped, b.spring_count)
+    with pytest.raises(Exception, match="cloth.pin"):
+        benchmark_cloth_part(9, 2, 0, pin="topp")
+
+
+def test_frame_spool_writes_a_trajectory_atomically(tmp_path):
+    """Frames streamed to a FrameSpool make the file Trajectory.save would; the target is untouched until the end,
+    and no temporary file is left."""
+    from springsim.io._spool import FrameSpool
+    from springsim.run.driver import Trajectory
+
+    target = tmp_path / "frames.npz"
+    target.write_bytes(b"old")
+    q = np.random.default_rng(1).standard_normal((3, 5, 3))
+    spool = FrameSpool(target)
+    for k in range(3):
+        spool.append(q[k], 2 * q[k])
+    assert target.read_bytes() == b"old"
+    with pytest.raises(ValueError):
+        spool.append(np.zeros((4, 3)), np.zeros((4, 3)))
+    spool.finish(np.arange(3.0), {"format": "springsim-trajectory", "format_version": 1, "x": 1})
+    spool.discard()
+    t = Trajectory.load(target)
+    assert np.array_equal(t.q, q) and np.array_equal(t.qd, 2 * q) and t.meta["x"] == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["frames.npz"]
+    spool = FrameSpool(target)
+    spool.append(q[0], q[0])
+    spool.discard()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["frames.npz"] and Trajectory.load(target).frame_count == 3
+
+
+@needs_petsc
+@pytest.mark.parametrize("kind, integrator, ranks, partitioner",
+                         [("cloth", "linearized_implicit", 1, "contiguous"),
+                          ("cloth", "implicit_euler", 2, "contiguous"),
+                          ("cloth", "linearized_implicit", 3, "contiguous"),
+                          ("cloth", "symplectic_euler", 2, "ptscotch"),
+                          ("scattered", "implicit_euler", 2, "contiguous"),
+                          ("scattered", "bdf2", 3, "ptscotch")])
+def test_scene_built_per_rank_matches_the_replicated_run(kind, integrator, ranks, partitioner, tmp_path):
+    """A generated cloth (each rank its rows) or a scene scattered from rank 0, run with the frames streamed to a
+    file: the frames are the replicated model's to round-off (the parts are the same to the last bit,
+    test_cloth_built_per_rank_is_the_models_part; PETSc's assembly adds the ghost rows in the order their messages
+    arrive, and a graph partition sums in another order), and the fingerprint is the model's where rank 0 had it."""
+    from springsim.run.driver import Trajectory
+
+    out = tmp_path / "t.npz"
+    mpirun(ranks, "built_per_rank", kind, integrator, "4", str(out), partitioner)
+    t, ref = Trajectory.load(out), np.load(str(out) + ".ref.npz")
+    assert t.q.shape == ref["q"].shape and t.frame_count == 5
+    assert np.abs(t.q - ref["q"]).max() <= 1e-10 and np.abs(t.qd - ref["qd"]).max() <= 1e-7
+    assert int(ref["ranks"]) == ranks
+    assert t.meta["model_fingerprint"] == (None if kind == "cloth" else str(ref["fingerprint"]))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["t.npz", "t.npz.ref.npz"]  # no temporary file left
+
+
+@needs_petsc
+def test_stopped_run_streams_its_frames(tmp_path):
+    """A blow-up with frames streamed: every rank stops at the same step, the file holds the finite frames so far."""
+    from springsim.run.driver import Trajectory
+
+    out = tmp_path / "s.npz"
+    r = mpirun(2, "stopped_streamed", str(out))
+    steps = set(re.findall(r"stopped at step (\d+)", r.stdout))
+    assert len(steps) == 1 and r.stdout.count("stopped at step") == 2
+    t = Trajectory.load(out)
+    assert t.frame_count == int(steps.pop()) and np.isfinite(t.q).all()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.npz"]
+
+
+@needs_petsc
+def test_graph_partition_weighs_particles_by_their_pairs(tmp_path):
+    """On the distributed graph, PT-Scotch balances the parts' pairs (each particle weighted by its pair count,
+    through MatPartitioningSetVertexWeights), not their particle counts."""
+    import json
+
+    out = tmp_path / "w.json"
+    mpirun(2, "weighted_partition", str(out))
+    r = json.loads(out.read_text())
+    (n0, e0), (n1, e1) = r["False"], r["True"]
+    assert max(n0) <= 1.1 * min(n0) and max(e0) > 2 * min(e0)   # unweighted: particles balanced, pairs not
+    assert max(e1) <= 1.1 * min(e1) and max(n1) > 1.5 * min(n1)  # weighted: pairs balanced
