@@ -58,10 +58,10 @@ Three rules decide how the iteration is globalised and when it stops (``stage_so
     force_rtol`` times implicit Euler's local truncation error ``c |v - v_hat| / 2 = h^2 |a| / 2``: 0.2 %. Stiff
     ODE codes stop Newton at a fraction of their error test in the same way (CVODE at 0.1 of it, Hindmarsh et al.
     2005; scipy's BDF at ``min(0.03, rtol^0.5)``). On the benchmark cloth (n = 32, 30 frames at h = 1/60 s, ke =
-    1e4 and 1e6, undamped and damped; ``benchmarks/notes/2026-12-05-stage-tolerance.md``) runs at 1e-3 stay within
+    1e4 and 1e6, undamped and damped; BENCHMARKS.md#stiff-convergence) runs at 1e-3 stay within
     0.13 mm RMS of runs at 1e-8 (or as far as runs at 1e-5 are, where the buckling took another branch), against
     errors of 0.8-5 cm from the validated reference, and take 3.1-9.5 Newton iterations per stage instead of
-    3.7-10.3 at the former default 1e-5. Adaptive stepping caps the tolerance at
+    3.7-10.3 at the former default 1e-5 (both with a monotone line search). Adaptive stepping caps the tolerance at
     ``0.1 time_rtol`` (:attr:`StageSolver.force_rtol_cap`), so that the Newton error stays below its error test.
 
 ``"residual"``
@@ -105,7 +105,7 @@ The reference value, the largest ``E`` of the window, never rises, so the stage 
 stationary point of ``E`` under the same conditions as the monotone search (GLL's theorem). Over 30 frames of
 the benchmark cloth (n = 32, h = 1/60 s) the Newton iterations per stage fell at ke = 1e8 from 15.8 to 11.5
 (implicit Euler), 23.0 to 18.0 (BDF2) and 11.2 to 8.7 (TR-BDF2), by up to 14 % at ke = 1e6, and the errors
-against the validated reference stayed the same (``benchmarks/notes/2026-12-05-stage-tolerance.md``).
+against the validated reference stayed the same (BENCHMARKS.md#stiff-convergence).
 
 Starting point. A stage starts from the velocity its method gives (``v0``: the step's input velocity, or the
 previous stage's); the integrators also offer predictors (:meth:`ImplicitIntegrator.predict
