@@ -28,8 +28,8 @@ with the frames so far, as a fixed-step run does (:mod:`springsim.run.driver`): 
 with an error above the tolerance.
 
 The stages of implicit integrators stop at their ``force_rtol`` capped at ``NEWTON_SHARE`` (0.1) times
-``time_rtol`` (``time_atol`` when ``time_rtol`` is 0; never below ``NEWTON_FLOOR``, 1e-10; :attr:`~springsim.integrators._stage.StageSolver.force_rtol_cap`)
-for the run, so that the Newton error stays a fraction of the error the test accepts, as stiff ODE codes do
+``time_rtol`` (``time_atol`` when ``time_rtol`` is 0; never below ``NEWTON_FLOOR``, 1e-10;
+:attr:`~springsim.integrators._stage.StageSolver.force_rtol_cap`) for the run, so that the Newton error stays a fraction of the error the test accepts, as stiff ODE codes do
 (CVODE stops Newton at 0.1 of its error test, Hindmarsh et al. 2005): a step is judged on its truncation error,
 not on an unfinished solve.
 
