@@ -29,9 +29,9 @@ with an error above the tolerance.
 
 The stages of implicit integrators stop at their ``force_rtol`` capped at ``NEWTON_SHARE`` (0.1) times
 ``time_rtol`` (``time_atol`` when ``time_rtol`` is 0; never below ``NEWTON_FLOOR``, 1e-10;
-:attr:`~springsim.integrators._stage.StageSolver.force_rtol_cap`) for the run, so that the Newton error stays a fraction of the error the test accepts, as stiff ODE codes do
-(CVODE stops Newton at 0.1 of its error test, Hindmarsh et al. 2005): a step is judged on its truncation error,
-not on an unfinished solve.
+:attr:`~springsim.integrators._stage.StageSolver.force_rtol_cap`) for the run, so that the Newton error stays a
+fraction of the error the test accepts, as stiff ODE codes do (CVODE stops Newton at 0.1 of its error test,
+Hindmarsh et al. 2005): a step is judged on its truncation error, not on an unfinished solve.
 
 Output frames at the requested times come from cubic Hermite interpolation of ``q`` between
 the two step ends (values ``q``, slopes ``qd``); velocities are the derivative of that cubic.
