@@ -91,8 +91,9 @@ def simulate_distributed(model, integrator: str, dt: float, steps: int, *, comm=
     trajectory's ``meta`` records ``backend: petsc``, the rank count and the set-up time (wall ``init_s``, CPU
     ``init_cpu_s``), ``meta["timings"]`` the system's time in exchange, forces, assembly, insertion, preconditioner
     set-up and solves, and ``meta["pc_stats"]`` the preconditioner builds, re-set-ups with a kept interpolation and
-    kept ones found stale (:attr:`DistributedSystem.pc_stats`); the other ranks return None. The distributed system
-    is destroyed at the end, whatever happens.
+    kept ones found stale (:attr:`DistributedSystem.pc_stats`), and ``meta["per_rank"]`` every rank's set-up and
+    step times (wall and CPU) and communication (:meth:`DistributedSystem.communication`); the other ranks return
+    None. The distributed system is destroyed at the end, whatever happens.
 
     With ``out``, the root writes every frame to that file as it is gathered (:class:`springsim.io._spool.FrameSpool`)
     instead of holding them: the file is written atomically at the end, also when the run stops with a
@@ -149,8 +150,12 @@ def simulate_distributed(model, integrator: str, dt: float, steps: int, *, comm=
     spool = FrameSpool(out) if out is not None and system.is_root else None
     try:
         try:
+            t1, c1 = time.perf_counter(), time.process_time()
             traj = simulate(model, integ, dt, steps, frame_every=frame_every, record=record, progress=progress,
                             check_energy=check_energy, frames=spool)
+            mine = dict(init_s=init_s, init_cpu_s=init_cpu_s, steps_s=time.perf_counter() - t1,
+                        steps_cpu_s=time.process_time() - c1, **system.communication())
+            per_rank = system.mpi.gather(mine, root=system.root)
         except SimulationError as e:  # the frames so far go to ``out`` too
             if spool is not None and e.trajectory is not None:
                 e.trajectory.meta["out"] = os.fspath(out)
@@ -165,6 +170,7 @@ def simulate_distributed(model, integrator: str, dt: float, steps: int, *, comm=
             traj.meta["init_cpu_s"] = init_cpu_s
             traj.meta["timings"] = timings
             traj.meta["pc_stats"] = pc_stats
+            traj.meta["per_rank"] = per_rank
             if spool is not None:
                 traj.meta["out"] = os.fspath(out)
                 traj.save(out)

@@ -420,6 +420,9 @@ class DistributedSystem(System):
         self._kept = None  # (ksp, ksp type, baseline iterations, solves served, user max_it) of a kept KSP
         #: preconditioner builds, re-set-ups with a kept interpolation, and kept ones found stale
         self.pc_stats = dict(builds=0, reuses=0, stale=0)
+        #: ghost scatters forward (owners to ghosts) and in reverse (ghost rows added to their owners), assemblies
+        self.comm_counts = dict(forward_scatters=0, reverse_scatters=0, assemblies=0)
+        self._offproc_blocks = 0  # 3x3 blocks of the local matrix in ghost rows (sent to their owners)
 
         # local arrays (owned, ghosts, fixed); the fixed rows are constant
         self.q_loc = np.array(p.pair_model.particle_q)
@@ -623,6 +626,7 @@ class DistributedSystem(System):
         self.scatter.scatter(self.x, self.loc, addv=self.PETSc.InsertMode.INSERT_VALUES,
                              mode=self.PETSc.ScatterMode.FORWARD)
         loc[:nlf] = self.loc.array.reshape(-1, 3)
+        self.comm_counts["forward_scatters"] += 1
 
     def exchange(self, q_own: np.ndarray, v_own: np.ndarray | None = None, *, geometry=None, q_start=None) -> None:
         """Fill the local positions and velocities (owned and ghosts) from the owned arrays of every rank; also
@@ -655,6 +659,7 @@ class DistributedSystem(System):
         self.scatter.scatter(self.loc, self.w, addv=self.PETSc.InsertMode.ADD_VALUES,
                              mode=self.PETSc.ScatterMode.REVERSE)
         out[...] = self.w.array.reshape(-1, 3)
+        self.comm_counts["reverse_scatters"] += 1
         return out
 
     def forces(self, q_own, v_own, out=None, *, damping_geometry=None, exchange: bool = True):
@@ -770,14 +775,36 @@ class DistributedSystem(System):
         A.zeroEntries()
         if self._local_csr is None:  # the local pattern never changes
             self._local_csr = (bsr.indptr.astype(self.PETSc.IntType), bsr.indices.astype(self.PETSc.IntType))
+            self._offproc_blocks = int(bsr.indptr[-1] - bsr.indptr[self.part.n_own])
         A.setValuesBlockedLocalCSR(*self._local_csr, bsr.data.reshape(-1), addv=self.PETSc.InsertMode.ADD_VALUES)
         A.assemble()
         self.symmetric = self.all(bool(m.symmetric))
         self._positions = q_own
+        self.comm_counts["assemblies"] += 1
         self._last_assembly_s = time.perf_counter() - t0
         self.timings["assembly_s"] += t1 - t0
         self.timings["insert_s"] += time.perf_counter() - t1
         return _Operator(self)
+
+    def communication(self) -> dict:
+        """This rank's share of the communication so far, counted from the ghost scatter's and the matrix's sizes.
+
+        Not collective. A forward ghost scatter receives the rank's ghost rows (3 doubles per ghost particle);
+        a reverse one sends as many; an assembly sends the 3x3 blocks of the ghost rows to their owners (72 bytes
+        of values per block, their indices not counted).
+
+        Returns
+        -------
+        dict
+            ``ghosts`` (ghost particles of this rank), ``offproc_blocks`` (blocks in ghost rows per assembly),
+            :attr:`comm_counts`, and the bytes moved by the ghost scatters (``ghost_bytes``) and by the
+            off-process matrix entries (``offproc_bytes``) over them.
+        """
+        c = self.comm_counts
+        ghost_row = 24 * self.part.n_ghost
+        return dict(ghosts=int(self.part.n_ghost), offproc_blocks=self._offproc_blocks, **c,
+                    ghost_bytes=ghost_row * (c["forward_scatters"] + c["reverse_scatters"]),
+                    offproc_bytes=72 * self._offproc_blocks * c["assemblies"])
 
     def linearize_at(self, q_own):
         """Record the springs' geometry at this state for the ``mixed`` mode's next assembly. Collective.
