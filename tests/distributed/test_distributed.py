@@ -404,6 +404,41 @@ def test_distributed_benchmark_runs(tmp_path):
         assert float(r["diff_to_serial_m"]) < 1e-6 and float(r["max_rss_mb"]) > 0 and float(r["step_s"]) > 0
 
 
+@needs_petsc
+@pytest.mark.slow
+def test_distributed_benchmark_weak_scaling(tmp_path):
+    """``--weak P``: P^2 particles per rank (side round(P sqrt(ranks))), per-step iterations, memory and the
+    communication counted from the scatter and measured by PETSc's log; 1 rank moves nothing."""
+    import csv
+    import json
+
+    from benchmarks import distributed
+
+    _fail()
+    assert distributed.weak_side(256, 1) == 256 and distributed.weak_side(256, 2) == 362
+    assert distributed.weak_side(256, 4) == 512 and distributed.weak_side(724, 2) == 1024
+    assert distributed.main(["--weak", "8", "--ranks", "1", "2", "--steps", "1", "--out", str(tmp_path)]) == 0
+    with open(tmp_path / "distributed_weak.csv", newline="") as fh:
+        reader = csv.DictReader(fh)
+        rows = list(reader)
+    assert reader.fieldnames == distributed.WEAK_COLUMNS and len(rows) == 2
+    one, two = rows
+    assert [int(r["side"]) for r in rows] == [8, 11] and float(two["particles_per_rank"]) == 60.5
+    assert float(one["efficiency"]) == 1.0 and float(two["efficiency"]) > 0
+    for r in rows:
+        assert int(r["failed_steps"]) == 0 and float(r["newton_its"]) >= 1 and float(r["linear_its"]) > 0
+        assert float(r["max_rss_mb"]) >= float(r["mean_rss_mb"]) > 0
+        assert float(r["step_s_max"]) > 0 and float(r["cpu_step_s_max"]) > 0
+    for k in ("ghosts", "ghost_mb", "offproc_blocks", "offproc_mb", "scatter_mb", "assembly_mb"):
+        assert float(one[k]) == 0 and float(two[k]) > 0, k
+    # the cloth's bands: the lower rank's ghosts are the upper rank's first two rows (bending reaches two rows)
+    assert int(two["ghosts"]) == 2 * 11
+    # the scatters PETSc logs carry at least the ghost exchanges counted from their sizes
+    assert float(two["scatter_mb"]) >= float(two["ghost_mb"])
+    saved = json.loads((tmp_path / "distributed_weak.json").read_text())
+    assert [r["ranks"] for r in saved["rows"]] == [1, 2] and "nproc" in saved["machine"]
+
+
 # -- options (no PETSc needed) -----------------------------------------------------------------------------------
 def test_backend_option_is_validated(tmp_path, capsys):
     from springsim.cli import main
