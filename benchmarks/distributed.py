@@ -79,7 +79,7 @@ MESSAGE_EVENTS = {"scatter": ("VecScatterBegin", "VecScatterEnd"), "assembly": (
 #: 3x3 blocks in ghost rows (72 bytes each), the ``*_mb`` after them measured by PETSc's log (MESSAGE_EVENTS)
 WEAK_COLUMNS = ["ranks", "side", "particles", "particles_per_rank", "dofs", "steps", "step_s", "step_s_max",
                 "efficiency", "cpu_step_s", "cpu_step_s_max", "newton_its", "linear_solves", "linear_its",
-                "its_per_solve", "setup_s", "pc_builds", "init_s", "max_rss_mb", "mean_rss_mb", "kb_per_particle",
+                "its_per_solve", "setup_s", "solve_s", "pc_builds", "init_s", "max_rss_mb", "mean_rss_mb", "kb_per_particle",
                 "ghosts", "ghost_mb", "offproc_blocks", "offproc_mb", "scatter_mb", "assembly_mb", "pc_setup_mb",
                 "ksp_mb", "failed_steps", "load", "partitioner", "petsc_options"]
 
@@ -201,7 +201,7 @@ def weak_row(r: dict, side: int, steps: int) -> dict:
                 step_s_max=max(q["steps_s"] for q in per) / steps, cpu_step_s=r["cpu_step_s"],
                 cpu_step_s_max=max(q["steps_cpu_s"] for q in per) / steps, newton_its=r["newton_its"],
                 linear_solves=r["linear_solves"], linear_its=r["linear_its"], its_per_solve=r["its_per_solve"],
-                setup_s=r["setup_s"], pc_builds=r["pc_builds"], init_s=max(q["init_s"] for q in per),
+                setup_s=r["setup_s"], solve_s=r["solve_s"], pc_builds=r["pc_builds"], init_s=max(q["init_s"] for q in per),
                 max_rss_mb=float(rss.max()), mean_rss_mb=float(rss.mean()),
                 kb_per_particle=1024 * float(rss.max()) / (particles / ranks),
                 ghosts=sum(q["ghosts"] for q in per),
