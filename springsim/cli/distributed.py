@@ -5,19 +5,21 @@ ranks with one ``springsim: error:`` line from rank 0 and exit status 2; rank 0 
 configuration and its part of the model (no rank keeps the whole model), and streams the gathered frames to
 ``--out`` (:class:`~springsim.io._spool.FrameSpool`) instead of holding them. Errors during the run are
 collective (global reductions decide blow-ups and Newton; KSP results are global), so every rank stops at the
-same step and rank 0 reports it, saving the frames so far with ``--out``. Anything else on one rank (a bug, memory exhausted) prints one line naming the rank and aborts
-the MPI job, so no rank waits forever in a collective call.
+same step and rank 0 reports it, saving the frames so far with ``--out``; so do Ctrl-C and SIGTERM, which the
+ranks agree on after each step (:mod:`springsim.run.interrupts`). The other ranks wait for rank 0's save before
+they exit. Anything else on one rank (a bug, memory exhausted) prints one line naming the rank and aborts the MPI
+job, so no rank waits forever in a collective call.
 """
 
 from __future__ import annotations
 
 import sys
 
-from ..errors import SimulationError, SpringsimError
+from ..errors import SimulationError, SimulationInterrupted, SpringsimError
 from ..io._spool import FrameSpool
 from .runner import (_provenance, execute, print_rows, save_or_rescue, save_stopped_run, summary_lines,
                      warn_failed_steps)
-from .session import _Exit
+from .session import _Exit, interrupt_status
 
 __all__ = ["agree", "run_distributed", "abort_on_error"]
 
@@ -98,10 +100,24 @@ def run_distributed(args, scene, cfg) -> int:
     record = args.out is not None
     spool = FrameSpool(args.out) if record and root else None  # rank 0 streams the frames to --out
     try:
-        return _run(args, scene, cfg, spool, root, record)
+        status = _run(args, scene, cfg, spool, root, record)
+    except _Exit as e:
+        status = e.status
     finally:
         if spool is not None:
             spool.discard()
+    _wait_for_root()
+    return status
+
+
+def _wait_for_root() -> None:
+    """Every rank waits until rank 0 has saved and reported: ``mpiexec`` ends the whole job as soon as one rank
+    exits with a non-zero status, which would kill rank 0 in the middle of saving the frames of a stopped run."""
+    from ..distributed import env_size, import_petsc
+
+    if env_size() > 1:
+        _, MPI = import_petsc()
+        MPI.COMM_WORLD.Barrier()
 
 
 def _run(args, scene, cfg, spool, root: bool, record: bool) -> int:
@@ -109,9 +125,9 @@ def _run(args, scene, cfg, spool, root: bool, record: bool) -> int:
     try:
         integrator, traj = execute(scene, cfg, record=record, frame_every=args.frame_every, quiet=not root,
                                    frames=spool)
-    except SimulationError as e:
-        if e.trajectory is None:  # not the root rank: the root reports
-            raise _Exit(1) from None
+    except (SimulationError, SimulationInterrupted) as e:  # every rank, at the same step
+        if e.trajectory is None:  # not the root rank: the root reports and saves
+            return interrupt_status() if isinstance(e, SimulationInterrupted) else 1
         return save_stopped_run(e, scene, cfg, args.out)
     if traj is None:  # not the root rank
         return 0

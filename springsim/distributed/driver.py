@@ -6,7 +6,9 @@ script.py``, or ``mpiexec -n 4 springsim run scene.yaml --backend petsc``). The 
 (:mod:`springsim.integrators`) over a :class:`~springsim.distributed.DistributedSystem`; frames are gathered on
 the root rank, which returns the :class:`~springsim.run.driver.Trajectory`; the other ranks return None. Blow-ups
 and stage failures are decided from global reductions, so every rank stops at the same step with the same
-:class:`~springsim.errors.SimulationError`; the root's carries the frames so far.
+:class:`~springsim.errors.SimulationError`; the root's carries the frames so far. Ctrl-C and SIGTERM are deferred
+during a step and agreed on after it (:mod:`springsim.run.interrupts`): every rank raises
+:class:`~springsim.errors.SimulationInterrupted` at the same step.
 """
 
 from __future__ import annotations
@@ -14,7 +16,7 @@ from __future__ import annotations
 import os
 import time
 
-from ..errors import SceneError, SimulationError
+from ..errors import SceneError, SimulationError, SimulationInterrupted
 from ..integrators import LinearSolveOptions, make_integrator
 from ..linsolve import DEFAULT_RTOL
 from ..io._spool import FrameSpool
@@ -97,7 +99,7 @@ def simulate_distributed(model, integrator: str, dt: float, steps: int, *, comm=
 
     With ``out``, the root writes every frame to that file as it is gathered (:class:`springsim.io._spool.FrameSpool`)
     instead of holding them: the file is written atomically at the end, also when the run stops with a
-    :class:`~springsim.errors.SimulationError` (the frames so far), and the trajectory returned has ``q`` and ``qd``
+    :class:`~springsim.errors.SimulationError` or is interrupted (the frames so far), and the trajectory returned has ``q`` and ``qd``
     None (``meta["out"]`` names the file).
 
     Parameters
@@ -141,6 +143,9 @@ def simulate_distributed(model, integrator: str, dt: float, steps: int, *, comm=
     ------
     SimulationError
         On every rank, at the same step, for a blow-up or a solver error; on the root it carries the frames so far.
+    SimulationInterrupted
+        On every rank, at the same step, when any rank received SIGINT (or SIGTERM handled by Python); on the root
+        it carries the frames so far.
     """
     t0, c0 = time.perf_counter(), time.process_time()
     integ = make_distributed(model, integrator, comm=comm, linear_rtol=linear_rtol, linear_maxiter=linear_maxiter,
@@ -156,7 +161,7 @@ def simulate_distributed(model, integrator: str, dt: float, steps: int, *, comm=
             mine = dict(init_s=init_s, init_cpu_s=init_cpu_s, steps_s=time.perf_counter() - t1,
                         steps_cpu_s=time.process_time() - c1, **system.communication())
             per_rank = system.mpi.gather(mine, root=system.root)
-        except SimulationError as e:  # the frames so far go to ``out`` too
+        except (SimulationError, SimulationInterrupted) as e:  # the frames so far go to ``out`` too
             if spool is not None and e.trajectory is not None:
                 e.trajectory.meta["out"] = os.fspath(out)
                 e.trajectory.save(out)

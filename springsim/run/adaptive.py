@@ -52,6 +52,7 @@ from ..integrators import INTEGRATORS, Integrator, StepStats, make_integrator
 from ..model import Model, State
 from ..progress import as_progress
 from .driver import RunRecorder, Trajectory
+from .interrupts import collective_interrupts
 from .options import ADAPTIVE_H_MIN
 
 __all__ = ["simulate_adaptive", "StepSizeController", "hermite_frame", "NEWTON_SHARE", "NEWTON_FLOOR"]
@@ -426,8 +427,9 @@ def simulate_adaptive(model: Model, integrator: str | Integrator, t_end: float, 
         share = max(NEWTON_SHARE * float(time_rtol if time_rtol > 0 else time_atol), NEWTON_FLOOR)
         stage.force_rtol_cap = share if cap is None else min(cap, share)
     try:
-        with single_blas_thread():
+        with single_blas_thread(), collective_interrupts(system) as interrupted:
             while fi < t_frames.size:
+                interrupted()  # every process stops at the same attempt (springsim.run.interrupts)
                 attempts += 1
                 if attempts > max_steps:
                     raise SimulationError(f"adaptive stepping exceeded max_steps={max_steps} at t={t:g} s; "

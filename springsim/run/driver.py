@@ -43,6 +43,7 @@ from ..io._npz import read_trajectory_npz
 from ..model import Model, State
 from ..progress import as_progress
 from .energy import EnergyBound
+from .interrupts import collective_interrupts
 from .options import MAX_STEPS, describe_int
 
 __all__ = ["Trajectory", "TRAJECTORY_FORMAT", "TRAJECTORY_FORMAT_VERSION", "run_metadata", "simulate", "SimulationInterrupted", "save_npz_atomic", "check_output_path",
@@ -687,7 +688,7 @@ def _simulate(model, integrator, dt, steps, state, frame_every, record, progress
     run.meta.update(dt=dt, steps=steps, frame_every=frame_every)
     k = 0
     try:
-        with single_blas_thread():
+        with single_blas_thread(), collective_interrupts(run.system) as interrupted:
             for k in range(1, steps + 1):
                 t_new = k * dt
                 st = run.step(dt)
@@ -697,6 +698,7 @@ def _simulate(model, integrator, dt, steps, state, frame_every, record, progress
                     run.record_current()
                 if progress is not None:
                     progress(k, steps)
+                interrupted()
     except KeyboardInterrupt:
         raise run.interrupted(f"step {run.steps} of {steps}") from None
     except SimulationError:

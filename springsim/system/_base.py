@@ -46,6 +46,8 @@ class System(ABC):
         Indices of fixed particles in the state layout (empty in a distributed system).
     is_root : bool
         Whether this process gathers frames and reports (always True serially).
+    size : int
+        Number of processes the system spans (1 serially).
     """
 
     model = None
@@ -60,6 +62,7 @@ class System(ABC):
     particle_mass: np.ndarray
     fixed: np.ndarray
     is_root: bool = True
+    size: int = 1
 
     # -- set-up -------------------------------------------------------------------------------------------------
     def metadata(self) -> dict:

@@ -287,6 +287,30 @@ def stopped_streamed(out):
     return 1
 
 
+def signalled_cli(rank, signame, scene_path, out):
+    """``springsim run --backend petsc --out`` where only ``rank`` receives ``signame`` (SIGTERM or SIGINT), from
+    itself during step 3: every rank must stop after that step, rank 0 save the frames so far, and every rank exit
+    with 128 + the signal (the ranks not signalled 130)."""
+    import os
+    import signal
+
+    from springsim.cli import main
+    from springsim.distributed import env_rank
+    from springsim.run.driver import RunRecorder
+
+    accept = RunRecorder.accept
+
+    def accept_and_signal(self, stats, t_new):
+        accept(self, stats, t_new)
+        if self.steps == 3 and env_rank() == int(rank):
+            os.kill(os.getpid(), getattr(signal, signame))
+
+    RunRecorder.accept = accept_and_signal
+    status = main(["run", scene_path, "--backend", "petsc", "--out", out])
+    print(f"rank {env_rank()}: status {status}", flush=True)
+    return 0
+
+
 def weighted_partition(out):
     """PT-Scotch on the distributed graph of a cloth whose upper half has 20 extra springs per particle, with and
     without weighing the particles by their pairs: particles and pair ends per part (rank 0 writes JSON)."""

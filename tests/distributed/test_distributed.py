@@ -615,6 +615,28 @@ def test_stopped_run_streams_its_frames(tmp_path):
 
 
 @needs_petsc
+@pytest.mark.parametrize("rank, signame", [(1, "SIGTERM"), (0, "SIGINT")])
+def test_cli_interrupt_on_one_rank_stops_every_rank_and_saves(rank, signame, tmp_path):
+    """SIGTERM or Ctrl-C reaching one rank only, in the middle of a step: the ranks agree after the step
+    (springsim.run.interrupts), every rank stops there, rank 0 saves the streamed frames so far (the other ranks
+    wait for it) and says so, and each rank's status is the interrupt's (128 + the signal where it arrived)."""
+    from springsim.run.driver import Trajectory
+
+    scene_path = tmp_path / "cloth.yaml"
+    scene_path.write_text("solver: {type: implicit_euler, timestep: 0.0166667, steps: 40}\nbenchmark_cloth: {n: 8}\n")
+    out = tmp_path / "i.npz"
+    r = mpirun(2, "signalled_cli", str(rank), signame, str(scene_path), str(out))
+    code = {"SIGTERM": 143, "SIGINT": 130}[signame]
+    assert sorted(re.findall(r"rank (\d): status (\d+)", r.stdout)) == [("0", str(code if rank == 0 else 130)),
+                                                                      ("1", str(code if rank == 1 else 130))]
+    assert "interrupted after step 3 of 40" in r.stderr and r.stderr.count("interrupted after") == 1
+    t = Trajectory.load(out)
+    assert t.frame_count == 4 and np.isclose(t.t[-1], 3 * 0.0166667)  # every step up to the interrupted one
+    assert np.isfinite(t.q).all()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cloth.yaml", "i.npz"]  # no spool left
+
+
+@needs_petsc
 def test_graph_partition_weighs_particles_by_their_pairs(tmp_path):
     """On the distributed graph, PT-Scotch balances the parts' pairs (each particle weighted by its pair count,
     through MatPartitioningSetVertexWeights), not their particle counts."""

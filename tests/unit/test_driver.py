@@ -159,6 +159,53 @@ def test_interrupt_inside_step_keeps_previous_frames():
     np.testing.assert_allclose(ei.value.trajectory.t, [0.0, 0.01, 0.02])
 
 
+def test_collective_interrupts_defer_signals_to_the_step_boundary():
+    """Over several processes a signal only records itself during a step; the check after the step raises on every
+    process when any was signalled (the reduction decides), through the handler the signal had; the handlers are
+    restored afterwards, SIG_DFL handlers are left alone, and one process defers nothing."""
+    import os
+    import signal
+
+    from springsim.run.interrupts import collective_interrupts
+
+    class Fake:
+        size, others = 2, 0.0
+
+        def max(self, value):
+            return max(value, self.others)
+
+    seen = []
+
+    def handler(signum, frame):
+        seen.append(signum)
+        raise KeyboardInterrupt
+
+    old_int, old_term = signal.signal(signal.SIGINT, handler), signal.getsignal(signal.SIGTERM)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    try:
+        system = Fake()
+        with collective_interrupts(system) as check:
+            assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL  # not a Python handler: left alone
+            os.kill(os.getpid(), signal.SIGINT)  # during a step: recorded, not raised
+            assert seen == []
+            with pytest.raises(KeyboardInterrupt):
+                check()
+            assert seen == [signal.SIGINT]
+            check()  # nothing pending any more
+            system.others = 1.0  # another process was signalled: this one stops too, its handler not called
+            with pytest.raises(KeyboardInterrupt):
+                check()
+            assert seen == [signal.SIGINT]
+        assert signal.getsignal(signal.SIGINT) is handler
+        system.size = 1
+        with collective_interrupts(system) as check:
+            assert signal.getsignal(signal.SIGINT) is handler
+            check()
+    finally:
+        signal.signal(signal.SIGINT, old_int)
+        signal.signal(signal.SIGTERM, old_term)
+
+
 def test_driver_argument_validation():
     """Bad dt, steps, frame_every or a non-finite initial state are rejected before stepping, naming the parameter:
     ValueError for bad values, TypeError for wrong types."""
