@@ -37,16 +37,27 @@ def _add_arguments(p: argparse.ArgumentParser) -> None:
 def _load_agreed(args):
     """:func:`load_and_configure` under ``mpiexec``: rank 0 reads the scene, the ranks agree on the outcome (one
     message from rank 0, every rank exits 2), rank 0 sends the others the run configuration and, with the petsc
-    backend, every rank its part of the model (:func:`springsim.distributed.scatter_model`); no rank keeps the
-    whole model."""
+    backend, every rank its part of the model (:func:`springsim.distributed.scatter_model`), or, for a scene of one
+    generator block, its description, from which every rank generates its part
+    (:func:`springsim.distributed.generated_part`); no rank keeps the whole model, and with a generator block no
+    rank builds it."""
     from ..distributed import env_rank, env_size
     from ..run.driver import check_output_path
 
-    err, scene, cfg = None, None, None
+    err, scene, cfg, mine = None, None, None, None
     root, many = env_rank() == 0, env_size() > 1
     if root:  # the other ranks wait for rank 0's verdict (agree) instead of reading the file too
         try:
-            scene, cfg = load_and_configure(args)
+            # a scene of one generator block is not built: every rank generates its part (_scene_parts); rank 0
+            # generates its own here, which checks the block's values before the verdict
+            scene, cfg = load_and_configure(args, build=False)
+            if scene.model is None:
+                if cfg.backend != "petsc":  # one process, the serial backend: the whole model after all
+                    scene, cfg = load_and_configure(args)
+                else:
+                    from ..distributed import generated_part
+
+                    mine = generated_part(scene.generator, env_size(), 0)
             if args.out is not None:
                 check_output_path(args.out, suffixes=(".npz",), inputs=(args.scene,))
         except (SpringsimError, OSError) as e:
@@ -70,7 +81,7 @@ def _load_agreed(args):
                 scene, cfg = got  # the scene without its model; the part comes below
             del got
         if cfg.backend == "petsc":
-            scene = _scene_parts(scene)
+            scene = _scene_parts(scene, mine)
     except SpringsimError:
         raise
     except Exception as e:  # one rank's own failure: end every rank now rather than leave them waiting
@@ -91,14 +102,18 @@ def _verdict(err):
     return MPI.COMM_WORLD.bcast(err, root=0)
 
 
-def _scene_parts(scene):
-    """``scene`` with its model replaced by this rank's part (sent from rank 0, which holds the model; collective).
-    The whole model is dropped."""
-    from ..distributed import import_petsc, scatter_model
+def _scene_parts(scene, mine=None):
+    """``scene`` with its model replaced by this rank's part: generated on the rank for a scene of one generator
+    block (``mine``: rank 0's, generated already), else sent from rank 0, which holds the model (collective), and
+    the whole model dropped."""
+    from ..distributed import generated_part, import_petsc, scatter_model
 
     _, MPI = import_petsc()
     comm = MPI.COMM_WORLD
-    part = scatter_model(scene.model if comm.Get_rank() == 0 else None, comm)
+    if scene.generator is not None:
+        part = mine if mine is not None else generated_part(scene.generator, comm.Get_size(), comm.Get_rank())
+    else:
+        part = scatter_model(scene.model if comm.Get_rank() == 0 else None, comm)
     return dataclasses.replace(scene, model=part)
 
 

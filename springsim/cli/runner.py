@@ -43,13 +43,15 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("-q", "--quiet", action="store_true", help="warnings and errors only: no progress, no summary")
 
 
-def load_and_configure(args: argparse.Namespace):
+def load_and_configure(args: argparse.Namespace, *, build: bool = True):
     """The scene of ``args.scene`` (a file, or the name of a shipped scene) with the command-line overrides applied.
 
     Parameters
     ----------
     args : argparse.Namespace
         Parsed arguments with ``scene`` and the flags of :func:`add_run_options`.
+    build : bool
+        False: a scene of one generator block is not built (:func:`springsim.scene.load_scene`).
 
     Returns
     -------
@@ -63,7 +65,7 @@ def load_and_configure(args: argparse.Namespace):
 
     args.scene = str(resolve_scene(args.scene))  # a bare name (cloth_64) is a shipped scene
     with phase(f"loading {args.scene}"):
-        scene = load_scene(Path(args.scene))  # always a path on the command line, never YAML text
+        scene = load_scene(Path(args.scene), build=build)  # always a path on the command line, never YAML text
     names = [name for name in SolverConfig.declarations() if hasattr(args, name)]
     cfg = scene.config.with_overrides(**{name: getattr(args, name) for name in names})
     return scene, cfg

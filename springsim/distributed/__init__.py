@@ -19,11 +19,11 @@ From the command line: ``mpiexec -n 4 springsim run scene.yaml --backend petsc``
 
 from ._petsc import BackendUnavailable, env_rank, env_size, import_petsc, petsc_available
 from .partition import LocalPart, contiguous_offsets, partition
-from .scene import ScenePart, benchmark_cloth_part, cloth_grid_part, model_part, scatter_model
+from .scene import ScenePart, benchmark_cloth_part, cloth_grid_part, generated_part, model_part, scatter_model
 
 __all__ = ["BackendUnavailable", "import_petsc", "petsc_available", "env_rank", "env_size", "LocalPart",
            "contiguous_offsets", "partition", "simulate_distributed", "make_distributed", "DistributedSystem",
-           "ScenePart", "benchmark_cloth_part", "cloth_grid_part", "model_part", "scatter_model"]
+           "ScenePart", "benchmark_cloth_part", "cloth_grid_part", "generated_part", "model_part", "scatter_model"]
 
 
 def __getattr__(name):  # the PETSc-backed parts import petsc4py only when used

@@ -11,8 +11,12 @@ gathered on the root rank and the energy bound). No rank holds the whole model:
   own arithmetic (:func:`springsim.model.builder.resolve_cloth_grid`), so the particles and springs are those of
   :meth:`springsim.ModelBuilder.add_cloth_grid` to the last bit, in the same order. Plain numpy: a rank needs no
   other rank for it. The whole grid's pin mask (one byte per particle) is computed on every rank.
-* :func:`scatter_model` sends every rank its part of a model that only the root rank holds (a YAML scene read
-  there): the root builds each part in turn (:func:`model_part`) and sends it, then the caller drops the model.
+* :func:`generated_part` is :func:`cloth_grid_part` for a YAML scene that is one ``cloth:`` or
+  ``benchmark_cloth:`` block (:attr:`springsim.scene.Scene.generator`): the command line reads the file on rank 0
+  without building the model, sends the block's description, and every rank generates its part.
+* :func:`scatter_model` sends every rank its part of a model that only the root rank holds (any other YAML scene,
+  read there): the root builds each part in turn (:func:`model_part`) and sends it, then the caller drops the
+  model.
 * :func:`model_part` is one rank's part of a whole model, with no communication (the replicated path, and the
   pieces :func:`scatter_model` sends).
 """
@@ -23,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import SceneError
 from ..forces._data import data_terms
 from ..model import Model
 from ..model.builder import ModelBuilder, resolve_cloth_grid
@@ -30,7 +35,8 @@ from ..model.model import AXES, ClothGrid
 from ..model.topology import cloth_grid_pairs, cloth_pin_mask
 from .partition import LocalPart, _sub_model, contiguous_offsets, local_part, pair_families, partition
 
-__all__ = ["ScenePart", "model_part", "cloth_grid_part", "benchmark_cloth_part", "scatter_model", "repartition"]
+__all__ = ["ScenePart", "model_part", "cloth_grid_part", "benchmark_cloth_part", "generated_part", "scatter_model",
+           "repartition"]
 
 
 @dataclass(eq=False)
@@ -331,6 +337,37 @@ def benchmark_cloth_part(n: int, size: int, rank: int, **options) -> ScenePart:
 
     return cloth_grid_part(benchmark_cloth_grid(n, **options), size, rank, gravity=-9.81, up_axis=AXES[2],
                            metadata={"name": f"benchmark_cloth_{n}"})
+
+
+def generated_part(generator: dict, size: int, rank: int) -> ScenePart:
+    """Rank ``rank``'s part of a YAML scene of one generator block, from the block's description alone.
+
+    Parameters
+    ----------
+    generator : dict
+        :attr:`springsim.scene.Scene.generator` (``grid``, ``gravity``, ``up_axis``, ``metadata``, ``paths``).
+    size : int
+        Number of ranks.
+    rank : int
+        This rank.
+
+    Returns
+    -------
+    ScenePart
+        The rank's part of the model the scene file describes (:func:`cloth_grid_part`).
+
+    Raises
+    ------
+    SceneError
+        An invalid value of the block, naming it as written in the file (``benchmark_cloth.stiffness``).
+    """
+    from ..scene.yaml_io import _renamed
+
+    try:
+        return cloth_grid_part(generator["grid"], size, rank, gravity=generator["gravity"],
+                               up_axis=generator["up_axis"], metadata=generator["metadata"])
+    except SceneError as e:
+        raise _renamed(e, generator["paths"]) from None
 
 
 _BASE = ("particle_q", "particle_qd", "particle_mass", "particle_radius", "particle_fixed")

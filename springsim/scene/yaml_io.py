@@ -187,15 +187,22 @@ class Scene:
     sha256 : str
         SHA-256 (hex) of the bytes the scene was loaded from (the file as it was read, or the
         UTF-8 of the text); empty for scenes built from a parsed document.
+    generator : dict or None
+        For a scene that is one ``cloth:`` or ``benchmark_cloth:`` block and nothing else (no ``particles``, pair
+        lists, term data or ``pin``), its description, from which a distributed run generates each rank's part
+        (:func:`springsim.distributed.generated_part`) without building the whole model: ``grid`` (the keywords of
+        :meth:`~springsim.ModelBuilder.add_cloth_grid`), ``gravity``, ``up_axis``, ``metadata`` and ``paths`` (the
+        builder's error paths -> the block's). None for other scenes.
     """
 
-    model: Model
+    model: Model | None
     config: SolverConfig
     plot: PlotSpec | None = None
     source: str = "<string>"
     name: str = "scene"
     metadata: dict = field(default_factory=dict)
     sha256: str = ""
+    generator: dict | None = None
 
 
 # -- small checks -------------------------------------------------------------------------
@@ -518,7 +525,7 @@ def _parse_plot(p, n: int) -> PlotSpec:
 
 
 # -- entry points -------------------------------------------------------------------------
-def parse_scene(doc, *, source: str = "<string>") -> Scene:
+def parse_scene(doc, *, source: str = "<string>", build: bool = True) -> Scene:
     """Build a :class:`Scene` from an already-parsed YAML document (a dict).
 
     Parameters
@@ -527,6 +534,10 @@ def parse_scene(doc, *, source: str = "<string>") -> Scene:
         The parsed YAML document.
     source : str
         Name of the document's origin (file path) for error messages.
+    build : bool
+        If False and the scene is one generator block (:attr:`Scene.generator`), the model is not built
+        (``model`` None; the block's values are then checked where its parts are generated) and the memory the
+        whole model would need is not required here; other scenes are built either way.
 
     Returns
     -------
@@ -567,8 +578,12 @@ def parse_scene(doc, *, source: str = "<string>") -> Scene:
     if generated > MAX_GENERATED_PARTICLES:
         raise SceneError(where, f"generator blocks would create {generated} particles, more than the limit "
                                 f"springsim.scene.yaml_io.MAX_GENERATED_PARTICLES = {MAX_GENERATED_PARTICLES}")
+    # one generator block alone: a distributed run generates its parts (Scene.generator)
+    single = len(cloths) == 1 and all(doc.get(key) is None for key in ("particles", "pin") + tuple(
+        key for _, _, key in terms))
+    lazy = single and not build
     need, have = generated * GENERATED_BYTES_PER_PARTICLE, memory.available_memory()
-    if have is not None and need > have:
+    if have is not None and need > have and not lazy:
         raise SceneError(where, f"generator blocks would create {generated} particles, which need about "
                                 f"{need / 2**30:.1f} GiB to build; {have / 2**30:.1f} GiB of memory are available")
     cfg, gravity, up = _parse_solver(doc, BENCHMARK_DT if "benchmark_cloth" in doc else None)
@@ -587,6 +602,15 @@ def parse_scene(doc, *, source: str = "<string>") -> Scene:
             model_data[term] = _parse_model_data(key, doc[key], [spec for spec in cls.data if spec.per == "model"])
     plot = _parse_plot(doc["plot"], n) if doc.get("plot") is not None else None
 
+    name = doc.get("name") or (Path(source).stem if source != "<string>" else "scene")
+    generator = None
+    if single:
+        path, kw, paths = cloths[0]
+        generator = dict(grid=dict(kw), gravity=gravity, up_axis=up, metadata=dict(name=name, source=source),
+                         paths=dict(paths))
+    if lazy:
+        return Scene(model=None, config=cfg, plot=plot, source=source, name=name,
+                     metadata={"description": doc.get("description", "")}, generator=generator)
     b = ModelBuilder(gravity=gravity, up_axis=up)
     if n_explicit:
         b.add_particles(particles["pos"], particles["vel"], particles["mass"], radius=particles["radius"],
@@ -604,7 +628,6 @@ def parse_scene(doc, *, source: str = "<string>") -> Scene:
             raise _renamed(e, paths) from None
     if doc.get("pin") is not None:  # after every particle exists: global indices, boxes over the whole scene
         b.set_fixed(pin_mask(doc["pin"], b.particle_count, positions=b.particle_q, path="pin"))
-    name = doc.get("name") or (Path(source).stem if source != "<string>" else "scene")
     b.metadata.update(name=name, source=source)
     try:
         model = b.finalize()
@@ -614,7 +637,7 @@ def parse_scene(doc, *, source: str = "<string>") -> Scene:
                 e = _spelled_as_written(e, key, pairs[term]["aliases"])
         raise e from None
     return Scene(model=model, config=cfg, plot=plot, source=source, name=name,
-                 metadata={"description": doc.get("description", "")})
+                 metadata={"description": doc.get("description", "")}, generator=generator)
 
 
 def _read_scene_file(source: str) -> tuple[str, bytes]:
@@ -692,7 +715,7 @@ def _looks_like_path(x) -> bool:
     return x.endswith((".yaml", ".yml")) or os.path.isfile(x)
 
 
-def load_scene(path_or_text) -> Scene:
+def load_scene(path_or_text, *, build: bool = True) -> Scene:
     """Load a scene from a YAML file path or from YAML text.
 
     Parameters
@@ -700,6 +723,8 @@ def load_scene(path_or_text) -> Scene:
     path_or_text : str or os.PathLike
         A path (a ``PathLike``, or a one-line string ending in ``.yaml``/``.yml`` or
         naming an existing file) or the YAML text itself.
+    build : bool
+        False: a scene of one generator block is not built (:func:`parse_scene`).
 
     Returns
     -------
@@ -746,7 +771,7 @@ def load_scene(path_or_text) -> Scene:
     except RecursionError:
         raise SceneError(source, "YAML document is nested too deeply") from None
     try:
-        scene = parse_scene(doc, source=source)
+        scene = parse_scene(doc, source=source, build=build)
     except RecursionError:
         raise SceneError(source, "YAML document is nested too deeply") from None
     except MemoryError:

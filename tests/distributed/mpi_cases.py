@@ -311,6 +311,19 @@ def signalled_cli(rank, signame, scene_path, out):
     return 0
 
 
+def cli_generated(scene_path, out):
+    """``springsim run --backend petsc`` on a scene of one generator block with the builder's whole-grid method
+    disabled: no rank may build the whole model (each generates its part)."""
+    from springsim.cli import main
+    from springsim.model.builder import ModelBuilder
+
+    def refuse(self, *a, **k):
+        raise AssertionError("the whole cloth was built")
+
+    ModelBuilder.add_cloth_grid = refuse
+    return main(["run", scene_path, "--backend", "petsc", "--out", out, "-q"])
+
+
 def weighted_partition(out):
     """PT-Scotch on the distributed graph of a cloth whose upper half has 20 extra springs per particle, with and
     without weighing the particles by their pairs: particles and pair ends per part (rank 0 writes JSON)."""

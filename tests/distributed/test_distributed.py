@@ -320,6 +320,32 @@ def test_bad_input_one_message_on_every_rank(tmp_path):
 
 
 @needs_petsc
+def test_cli_generator_scene_is_generated_per_rank(tmp_path):
+    """A YAML scene of one ``benchmark_cloth`` block under ``mpiexec``: rank 0 reads the file without building the
+    model and every rank generates its part (the builder's whole-grid method is disabled in the ranks); the frames
+    are the serial run's; a bad value of the block is one line naming it as written, exit 2."""
+    from springsim.cli import main
+    from springsim.run.driver import Trajectory
+
+    scene_path = tmp_path / "cloth.yaml"
+    scene_path.write_text("solver: {type: linearized_implicit, timestep: 0.0166667, steps: 4, jacobian: spd, "
+                          "linear_rtol: 1.0e-10}\nbenchmark_cloth: {n: 12, ke: 2.0e+3}\n")
+    out = tmp_path / "d.npz"
+    mpirun(3, "cli_generated", str(scene_path), str(out))
+    assert main(["run", str(scene_path), "--out", str(tmp_path / "s.npz"), "-q"]) == 0
+    d, s = Trajectory.load(out), Trajectory.load(tmp_path / "s.npz")
+    assert d.q.shape == s.q.shape == (5, 144, 3)
+    assert np.abs(d.q - s.q).max() < 1e-7
+    assert d.meta["model_fingerprint"] is None  # no rank had the whole model to hash
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("solver: {type: linearized_implicit, timestep: 0.01}\nbenchmark_cloth: {n: 12, ke: -3}\n")
+    r = mpirun(2, [sys.executable, "-m", "springsim", "run", str(bad), "--backend", "petsc"], check=False)
+    assert r.returncode == 2
+    lines = [x for x in r.stderr.splitlines() if x.startswith("springsim:")]
+    assert len(lines) == 1 and lines[0].startswith(f"springsim: error: {bad}: benchmark_cloth.ke: ")
+
+
+@needs_petsc
 def test_one_rank_failure_ends_every_rank_with_one_message():
     r = mpirun(2, "rank_error", str(ROOT / "scenes" / "cloth_64.yaml"), "1", check=False)
     assert r.returncode != 0

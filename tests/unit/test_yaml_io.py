@@ -377,3 +377,27 @@ def test_unused_options_are_named(recwarn):
     cfg = load_scene("solver: {type: linearized_implicit, timestep: 0.01, newton_tol: 1.0e-6, max_step: 0.1}\n"
                      "particles: [{pos: [0,0,0], mass: 1}]").config
     assert cfg.unused() == ["max_step", "newton_tol"]
+
+
+def test_generator_scene_is_described_and_built_only_on_request():
+    """A scene of one generator block carries its description (Scene.generator), from which a rank's part of the
+    model is exactly that rank's share of the built model; with build=False the model is not built; any other
+    scene (explicit particles, a pin, two blocks) has no description and is always built."""
+    from springsim.distributed import generated_part, model_part
+
+    text = "solver: {type: implicit_euler, timestep: 0.01, gravity: -3}\nbenchmark_cloth: {n: 6, ke: 2.0e+3}\n"
+    built, lazy = load_scene(text), load_scene(text, build=False)
+    assert lazy.model is None and lazy.generator == built.generator and built.generator["gravity"] == -3
+    for rank in range(3):
+        g, m = generated_part(lazy.generator, 3, rank), model_part(built.model, 3, rank)
+        assert g.particle_count == m.particle_count == 36 and g.pair_counts == m.pair_counts
+        np.testing.assert_array_equal(g.part.local_particles, m.part.local_particles)
+        for a, b in ((g.part.pair_model, m.part.pair_model), (g.part.particle_model, m.part.particle_model)):
+            assert a.fingerprint() == b.fingerprint()
+    for other in ("particles: [{pos: [5, 0, 0], mass: 1}]\n", "pin: [0]\n",
+                  "cloth: {nx: 3, ny: 3}\n"):
+        s = load_scene(text + other, build=False)
+        assert s.generator is None and s.model is not None
+    bad = load_scene(text.replace("2.0e+3", "-3"), build=False)  # checked where the parts are generated
+    with pytest.raises(SceneError, match=r"^benchmark_cloth\.ke: must be >= 0, got -3"):
+        generated_part(bad.generator, 2, 1)
