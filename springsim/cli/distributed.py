@@ -5,21 +5,22 @@ ranks with one ``springsim: error:`` line from rank 0 and exit status 2; rank 0 
 configuration and its part of the model (no rank keeps the whole model), and streams the gathered frames to
 ``--out`` (:class:`~springsim.io._spool.FrameSpool`) instead of holding them. Errors during the run are
 collective (global reductions decide blow-ups and Newton; KSP results are global), so every rank stops at the
-same step and rank 0 reports it, saving the frames so far with ``--out``; so do Ctrl-C and SIGTERM, which the
-ranks agree on after each step (:mod:`springsim.run.interrupts`). The other ranks wait for rank 0's save before
-they exit. Anything else on one rank (a bug, memory exhausted) prints one line naming the rank and aborts the MPI
+same step and rank 0 reports it, saving the frames so far with ``--out``; so do Ctrl-C and SIGTERM, which are only
+recorded until the ranks agree on them after a step (:mod:`springsim.run.interrupts`; during the set-up they wait
+for the first step's end). The other ranks wait for rank 0's save before they exit. Anything else on one rank (a bug, memory exhausted) prints one line naming the rank and aborts the MPI
 job, so no rank waits forever in a collective call.
 """
 
 from __future__ import annotations
 
+import contextlib
 import sys
 
 from ..errors import SimulationError, SimulationInterrupted, SpringsimError
 from ..io._spool import FrameSpool
 from .runner import (_provenance, execute, print_rows, save_or_rescue, save_stopped_run, summary_lines,
                      warn_failed_steps)
-from .session import _Exit, interrupt_status
+from .session import interrupt_status, signals_deferred
 
 __all__ = ["agree", "run_distributed", "abort_on_error"]
 
@@ -93,21 +94,23 @@ def run_distributed(args, scene, cfg) -> int:
         The exit status: 0 success; 1 a failed step (without ``--keep-going``), a blow-up or an output that could
         not be written (the frames then go to a rescue file); 130 or 143 when interrupted.
     """
-    from ..distributed import env_rank, import_petsc
+    from ..distributed import env_rank, env_size, import_petsc
 
     import_petsc()  # BackendUnavailable (a SpringsimError): one line with the install hint
     root = env_rank() == 0
     record = args.out is not None
-    spool = FrameSpool(args.out) if record and root else None  # rank 0 streams the frames to --out
-    try:
-        status = _run(args, scene, cfg, spool, root, record)
-    except _Exit as e:
-        status = e.status
-    finally:
-        if spool is not None:
-            spool.discard()
-    _wait_for_root()
-    return status
+    # on several ranks Ctrl-C and SIGTERM are only recorded until every rank is past the barrier below: the run's
+    # drivers act on them at a step boundary, where the ranks agree (springsim.run.interrupts); raised anywhere
+    # else on one rank, they would leave the others in a collective call or kill rank 0 in the middle of its save
+    with signals_deferred() if env_size() > 1 else contextlib.nullcontext([]) as got:
+        spool = FrameSpool(args.out) if record and root else None  # rank 0 streams the frames to --out
+        try:
+            status = _run(args, scene, cfg, spool, root, record)
+        finally:
+            if spool is not None:
+                spool.discard()
+        _wait_for_root()
+    return interrupt_status() if got and status == 0 else status
 
 
 def _wait_for_root() -> None:

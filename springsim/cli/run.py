@@ -11,7 +11,7 @@ import argparse
 import dataclasses
 import sys
 
-from ..errors import SimulationError, SimulationInterrupted, SpringsimError
+from ..errors import SceneError, SimulationError, SimulationInterrupted, SpringsimError
 from ..run.options import MAX_STEPS
 from .argtypes import int_at_least
 from .distributed import abort_on_error, agree, run_distributed
@@ -56,7 +56,10 @@ def _load_agreed(args):
                     scene, cfg = load_and_configure(args)
                 else:
                     from ..distributed import generated_part
+                    from ..scene.yaml_io import check_generated_memory
 
+                    grid = scene.generator["grid"]
+                    check_generated_memory(scene.generator["paths"]["cloth"], grid["nx"] * grid["ny"], env_size())
                     mine = generated_part(scene.generator, env_size(), 0)
             if args.out is not None:
                 check_output_path(args.out, suffixes=(".npz",), inputs=(args.scene,))
@@ -73,7 +76,7 @@ def _load_agreed(args):
         raise _Exit(2)
     try:
         if many:
-            from ..distributed import import_petsc
+            from ..distributed import generated_part, import_petsc
 
             _, MPI = import_petsc()
             got = MPI.COMM_WORLD.bcast((dataclasses.replace(scene, model=None), cfg) if root else None, root=0)
@@ -81,8 +84,22 @@ def _load_agreed(args):
                 scene, cfg = got  # the scene without its model; the part comes below
             del got
         if cfg.backend == "petsc":
-            scene = _scene_parts(scene, mine)
-    except SpringsimError:
+            if scene.generator is not None and many:  # every rank generates its part: agree on the outcome
+                err, part = None, mine
+                if not root:
+                    try:
+                        part = generated_part(scene.generator, env_size(), env_rank())
+                    except SceneError as e:  # a value only this rank's rows reach (an overflowing position)
+                        err = error_text(e, args.scene)
+                err = next((e for e in MPI.COMM_WORLD.allgather(err) if e is not None), None)  # the lowest rank's
+                if err is not None:
+                    if root:
+                        print(f"springsim: error: {err}", file=sys.stderr)
+                    raise _Exit(2)
+                scene = dataclasses.replace(scene, model=part)
+            else:
+                scene = _scene_parts(scene, mine)
+    except (SpringsimError, _Exit):
         raise
     except Exception as e:  # one rank's own failure: end every rank now rather than leave them waiting
         if many:

@@ -23,6 +23,8 @@ gathered on the root rank and the energy bound). No rank holds the whole model:
 
 from __future__ import annotations
 
+import re
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
@@ -297,12 +299,14 @@ def cloth_grid_part(grid: dict, size: int, rank: int, *, gravity: float = -9.81,
         b.add_springs(ij[first == rank], ke, kd)
         has_pairs = (nx >= 3 or ny >= 3) if family == "bending" else True  # families of the whole grid
         damped = damped or (kd != 0.0 and has_pairs)
-    piece = b.finalize()
+    with _global_ids(ids):  # finalize checks the positions
+        piece = b.finalize()
     part = local_part(piece, size, rank, offsets, free_index, owner, ids=ids)
 
     fb = ModelBuilder(gravity=gravity, up_axis=up_axis)
     fb.add_particles(_grid_positions(c, fixed_ids), None, c["mass"], drag=c["drag"], fixed=True)
-    fixed_model = fb.finalize()
+    with _global_ids(fixed_ids):
+        fixed_model = fb.finalize()
     springs = ny * (nx - 1) + (ny - 1) * nx + 2 * (ny - 1) * (nx - 1)  # the whole grid's
     if c["bending"]:
         springs += ny * max(nx - 2, 0) + max(ny - 2, 0) * nx
@@ -312,6 +316,18 @@ def cloth_grid_part(grid: dict, size: int, rank: int, *, gravity: float = -9.81,
                      gravity=piece.gravity, up_axis=piece.up_axis, pair_epsilon=piece.pair_epsilon,
                      metadata=dict(metadata or {}), cloth_grids=(ClothGrid(0, nx, ny),), damped=bool(damped),
                      pair_counts=counts)
+
+
+@contextmanager
+def _global_ids(ids: np.ndarray):
+    """A builder's error about ``particles[k]`` of a piece names the particle's id in the whole grid, ``ids[k]``."""
+    try:
+        yield
+    except SceneError as e:
+        m = re.match(r"particles\[(\d+)\]", e.path)
+        if m is None:
+            raise
+        raise SceneError(f"particles[{int(ids[int(m.group(1))])}]{e.path[m.end():]}", e.message) from None
 
 
 def benchmark_cloth_part(n: int, size: int, rank: int, **options) -> ScenePart:

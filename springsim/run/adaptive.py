@@ -383,6 +383,9 @@ def simulate_adaptive(model: Model, integrator: str | Integrator, t_end: float, 
         On invalid tolerances, step bounds or frame times (one-line message naming the field).
     SimulationError
         On blow-up or when the step falls below ``h_min``; ``err.trajectory`` has the finite frames.
+    SimulationInterrupted
+        On Ctrl-C (a ``KeyboardInterrupt``); ``err.trajectory`` has the frames so far. Over several processes every
+        process raises it after the same attempt (:mod:`springsim.run.interrupts`).
     """
     t_end = float(t_end)
     if not (np.isfinite(t_end) and t_end > 0):
@@ -426,80 +429,84 @@ def simulate_adaptive(model: Model, integrator: str | Integrator, t_end: float, 
     if stage is not None:  # the Newton error below the error test (restored when the run ends)
         share = max(NEWTON_SHARE * float(time_rtol if time_rtol > 0 else time_atol), NEWTON_FLOOR)
         stage.force_rtol_cap = share if cap is None else min(cap, share)
-    try:
-        with single_blas_thread(), collective_interrupts(system) as interrupted:
-            while fi < t_frames.size:
-                interrupted()  # every process stops at the same attempt (springsim.run.interrupts)
-                attempts += 1
-                if attempts > max_steps:
-                    raise SimulationError(f"adaptive stepping exceeded max_steps={max_steps} at t={t:g} s; "
-                                          f"{run.kept()}",
-                                          run.trajectory(keep_last=True), step=info["accepted"])
-                h = control.fit(h, t_end - t)
-                st, why = _attempt(run, integrator, h, info)
-                if why is not None:  # no usable step: retry smaller
-                    info["rejected"] += 1
-                    info["failed_attempts"] += 1
-                    info["newton_failures"] += st is not None and not st.newton_converged
-                    if control.at_h_min(h):
-                        raise SimulationError(f"adaptive stepping failed at t={t:g} s with h = h_min = {h_min:g} s: "
-                                              f"{why}; {run.kept()}", run.trajectory(keep_last=True),
-                                              step=info["accepted"])
-                    h = control.failed(h)
-                    continue
-                assert integrator.error_estimate is not None  # checked by _attempt
-                eq, ev = integrator.error_estimate
-                q0, v0 = run.state.particle_q, run.state.particle_qd
-                q1, v1 = run.scratch.particle_q, run.scratch.particle_qd
-                err = _error_norm(system, eq, q0, q1, time_rtol, time_atol)
-                if error_on == "qv":
-                    err = np.sqrt(0.5 * (err**2 + _error_norm(system, ev, v0, v1, time_rtol, time_atol)**2))
-                if not control.accepts(err):
-                    info["rejected"] += 1
-                    if control.at_h_min(h):  # never accepted as if it had met the tolerance
-                        raise SimulationError(f"adaptive stepping cannot meet the tolerance at t={t:g} s: the local "
-                                              f"error is {err:.3g} times time_rtol/time_atol at h = h_min = "
-                                              f"{h_min:g} s; loosen the tolerance or lower h_min; {run.kept()}",
+    # over several processes, signals are held until the processes agree after an attempt, and until the frames
+    # of an interrupted run are gathered (springsim.run.interrupts)
+    with collective_interrupts(system) as interrupted:
+        try:
+            with single_blas_thread():
+                while fi < t_frames.size:
+                    interrupted()  # every process stops at the same attempt (springsim.run.interrupts)
+                    attempts += 1
+                    if attempts > max_steps:
+                        raise SimulationError(f"adaptive stepping exceeded max_steps={max_steps} at t={t:g} s; "
+                                              f"{run.kept()}",
                                               run.trajectory(keep_last=True), step=info["accepted"])
-                    h = control.rejected(h, err)
-                    continue
-                # accepted: frames in (t, t1] by Hermite interpolation (exactly the state at t1)
-                t1 = t + h
-                info["accepted"] += 1
-                info["h_min"] = float(min(info["h_min"], h))
-                info["h_max"] = float(max(info["h_max"], h))
-                frames: list[tuple | None] = []
-                while fi < t_frames.size and t_frames[fi] <= t1 * (1 + 1e-12):
-                    tf = t_frames[fi]
-                    if abs(tf - t1) <= 1e-12 * max(t1, 1.0):
-                        frames.append(None)
-                    else:
-                        qf, vf = hermite_frame(t, q0, v0, t1, q1, v1, tf)
-                        qf[fixed] = q1[fixed]
-                        vf[fixed] = 0.0
-                        frames.append((tf, qf, vf))
-                    fi += 1
-                run.accept(st, t1)
-                for fr in frames:
-                    if fr is None:
-                        run.record_current()
-                    else:
-                        run.add_frame(*fr)
-                t = t1
-                info["h_mean"] = float(t / info["accepted"])
-                if progress is not None:
-                    progress(t, t_end)
-                h = control.accepted(h, err)
-    except KeyboardInterrupt:
-        raise run.interrupted(f"t={t:g} s of {t_end:g} s") from None
-    finally:
-        integrator.estimating = estimating
-        if retake:
-            integrator.retake = True
-        if stage is not None:
-            stage.force_rtol_cap = cap
-        guard.__exit__(None, None, None)
-    return run.finish()
+                    h = control.fit(h, t_end - t)
+                    st, why = _attempt(run, integrator, h, info)
+                    if why is not None:  # no usable step: retry smaller
+                        info["rejected"] += 1
+                        info["failed_attempts"] += 1
+                        info["newton_failures"] += st is not None and not st.newton_converged
+                        if control.at_h_min(h):
+                            raise SimulationError(f"adaptive stepping failed at t={t:g} s with h = h_min = "
+                                                  f"{h_min:g} s: {why}; {run.kept()}",
+                                                  run.trajectory(keep_last=True), step=info["accepted"])
+                        h = control.failed(h)
+                        continue
+                    assert integrator.error_estimate is not None  # checked by _attempt
+                    eq, ev = integrator.error_estimate
+                    q0, v0 = run.state.particle_q, run.state.particle_qd
+                    q1, v1 = run.scratch.particle_q, run.scratch.particle_qd
+                    err = _error_norm(system, eq, q0, q1, time_rtol, time_atol)
+                    if error_on == "qv":
+                        err = np.sqrt(0.5 * (err**2 + _error_norm(system, ev, v0, v1, time_rtol, time_atol)**2))
+                    if not control.accepts(err):
+                        info["rejected"] += 1
+                        if control.at_h_min(h):  # never accepted as if it had met the tolerance
+                            raise SimulationError(f"adaptive stepping cannot meet the tolerance at t={t:g} s: the "
+                                                  f"local error is {err:.3g} times time_rtol/time_atol at h = h_min = "
+                                                  f"{h_min:g} s; loosen the tolerance or lower h_min; {run.kept()}",
+                                                  run.trajectory(keep_last=True), step=info["accepted"])
+                        h = control.rejected(h, err)
+                        continue
+                    # accepted: frames in (t, t1] by Hermite interpolation (exactly the state at t1)
+                    t1 = t + h
+                    info["accepted"] += 1
+                    info["h_min"] = float(min(info["h_min"], h))
+                    info["h_max"] = float(max(info["h_max"], h))
+                    frames: list[tuple | None] = []
+                    while fi < t_frames.size and t_frames[fi] <= t1 * (1 + 1e-12):
+                        tf = t_frames[fi]
+                        if abs(tf - t1) <= 1e-12 * max(t1, 1.0):
+                            frames.append(None)
+                        else:
+                            qf, vf = hermite_frame(t, q0, v0, t1, q1, v1, tf)
+                            qf[fixed] = q1[fixed]
+                            vf[fixed] = 0.0
+                            frames.append((tf, qf, vf))
+                        fi += 1
+                    run.accept(st, t1)
+                    for fr in frames:
+                        if fr is None:
+                            run.record_current()
+                        else:
+                            run.add_frame(*fr)
+                    t = t1
+                    info["h_mean"] = float(t / info["accepted"])
+                    if progress is not None:
+                        progress(t, t_end)
+                    h = control.accepted(h, err)
+                interrupted()  # a signal during the last attempt
+        except KeyboardInterrupt:
+            raise run.interrupted(f"t={t:g} s of {t_end:g} s") from None
+        finally:
+            integrator.estimating = estimating
+            if retake:
+                integrator.retake = True
+            if stage is not None:
+                stage.force_rtol_cap = cap
+            guard.__exit__(None, None, None)
+        return run.finish()
 
 
 def _attempt(run: RunRecorder, integrator: Integrator, h: float, info: dict) -> tuple[StepStats | None, str | None]:

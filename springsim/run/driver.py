@@ -671,7 +671,8 @@ def simulate(model: Model, integrator: Integrator, dt: float, steps: int, *, sta
         it (None on processes other than the root of a distributed system). Also wraps any other :class:`~springsim.errors.SpringsimError` the integrator raises
         mid-run (e.g. ``SolverError``), kept as ``__cause__``.
     SimulationInterrupted
-        On KeyboardInterrupt (also from ``progress``), with the frames so far.
+        On KeyboardInterrupt (also from ``progress``), with the frames so far. Over several processes every
+        process raises it after the same step (:mod:`springsim.run.interrupts`).
     """
     dt = _positive_time("dt", dt)
     steps = _count("steps", steps, 0)
@@ -687,22 +688,25 @@ def _simulate(model, integrator, dt, steps, state, frame_every, record, progress
     progress = as_progress(progress) if run.is_root else None
     run.meta.update(dt=dt, steps=steps, frame_every=frame_every)
     k = 0
-    try:
-        with single_blas_thread(), collective_interrupts(run.system) as interrupted:
-            for k in range(1, steps + 1):
-                t_new = k * dt
-                st = run.step(dt)
-                run.check(k, t_new)
-                run.accept(st, t_new)
-                if (k == steps) or (record and k % frame_every == 0):
-                    run.record_current()
-                if progress is not None:
-                    progress(k, steps)
-                interrupted()
-    except KeyboardInterrupt:
-        raise run.interrupted(f"step {run.steps} of {steps}") from None
-    except SimulationError:
-        raise
-    except SpringsimError as e:
-        raise run.stopped(e, k, k * dt) from e
-    return run.finish()
+    # over several processes, signals are held until the processes agree after a step, and until the frames of
+    # an interrupted run are gathered (springsim.run.interrupts)
+    with collective_interrupts(run.system) as interrupted:
+        try:
+            with single_blas_thread():
+                for k in range(1, steps + 1):
+                    t_new = k * dt
+                    st = run.step(dt)
+                    run.check(k, t_new)
+                    run.accept(st, t_new)
+                    if (k == steps) or (record and k % frame_every == 0):
+                        run.record_current()
+                    if progress is not None:
+                        progress(k, steps)
+                    interrupted()
+        except KeyboardInterrupt:
+            raise run.interrupted(f"step {run.steps} of {steps}") from None
+        except SimulationError:
+            raise
+        except SpringsimError as e:
+            raise run.stopped(e, k, k * dt) from e
+        return run.finish()

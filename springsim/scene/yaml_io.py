@@ -51,7 +51,7 @@ from ..model.topology import pin_mask
 from ..run.options import SolverConfig
 from .gallery import BENCHMARK_DT, benchmark_cloth_grid
 
-__all__ = ["Scene", "PlotSpec", "load_scene", "parse_scene",
+__all__ = ["Scene", "PlotSpec", "load_scene", "parse_scene", "check_generated_memory",
            "MAX_GENERATED_PARTICLES", "MAX_SCENE_BYTES", "MAX_NESTING"]
 
 
@@ -525,6 +525,31 @@ def _parse_plot(p, n: int) -> PlotSpec:
 
 
 # -- entry points -------------------------------------------------------------------------
+def check_generated_memory(where: str, particles: int, ranks: int = 1) -> None:
+    """Refuse generator blocks whose model would not fit in the memory available (a one-line error, before any
+    allocation).
+
+    Parameters
+    ----------
+    where : str
+        The block's path, for the message (``cloth``, ``benchmark_cloth``).
+    particles : int
+        Particles the blocks create.
+    ranks : int
+        Processes that share them (a distributed run generates ``1/ranks`` of them in each process).
+
+    Raises
+    ------
+    SceneError
+        Building needs more than the available memory (:data:`GENERATED_BYTES_PER_PARTICLE` per particle).
+    """
+    need, have = particles * GENERATED_BYTES_PER_PARTICLE / ranks, memory.available_memory()
+    if have is not None and need > have:
+        share = "" if ranks == 1 else f" ({ranks} processes share them)"
+        raise SceneError(where, f"generator blocks would create {particles} particles{share}, which need about "
+                                f"{need / 2**30:.1f} GiB to build; {have / 2**30:.1f} GiB of memory are available")
+
+
 def parse_scene(doc, *, source: str = "<string>", build: bool = True) -> Scene:
     """Build a :class:`Scene` from an already-parsed YAML document (a dict).
 
@@ -537,7 +562,8 @@ def parse_scene(doc, *, source: str = "<string>", build: bool = True) -> Scene:
     build : bool
         If False and the scene is one generator block (:attr:`Scene.generator`), the model is not built
         (``model`` None; the block's values are then checked where its parts are generated) and the memory the
-        whole model would need is not required here; other scenes are built either way.
+        whole model would need is not required here (:func:`check_generated_memory` with the number of
+        processes, where they are known); other scenes are built either way.
 
     Returns
     -------
@@ -582,10 +608,8 @@ def parse_scene(doc, *, source: str = "<string>", build: bool = True) -> Scene:
     single = len(cloths) == 1 and all(doc.get(key) is None for key in ("particles", "pin") + tuple(
         key for _, _, key in terms))
     lazy = single and not build
-    need, have = generated * GENERATED_BYTES_PER_PARTICLE, memory.available_memory()
-    if have is not None and need > have and not lazy:
-        raise SceneError(where, f"generator blocks would create {generated} particles, which need about "
-                                f"{need / 2**30:.1f} GiB to build; {have / 2**30:.1f} GiB of memory are available")
+    if not lazy:
+        check_generated_memory(where, generated)
     cfg, gravity, up = _parse_solver(doc, BENCHMARK_DT if "benchmark_cloth" in doc else None)
 
     particles = _parse_particles(_item_list("particles", doc.get("particles")))

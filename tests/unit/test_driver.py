@@ -161,8 +161,9 @@ def test_interrupt_inside_step_keeps_previous_frames():
 
 def test_collective_interrupts_defer_signals_to_the_step_boundary():
     """Over several processes a signal only records itself during a step; the check after the step raises on every
-    process when any was signalled (the reduction decides), through the handler the signal had; the handlers are
-    restored afterwards, SIG_DFL handlers are left alone, and one process defers nothing."""
+    process when any was signalled, passing the largest signal number the processes agree on to the handler this
+    process had for it (so every process records the same signal); a signal after the last check is recorded, never
+    raised; the handlers are restored, SIG_DFL ones are left alone, and one process holds nothing."""
     import os
     import signal
 
@@ -192,10 +193,17 @@ def test_collective_interrupts_defer_signals_to_the_step_boundary():
                 check()
             assert seen == [signal.SIGINT]
             check()  # nothing pending any more
-            system.others = 1.0  # another process was signalled: this one stops too, its handler not called
+            system.others = float(signal.SIGINT)  # another process was signalled: this one records it and stops
             with pytest.raises(KeyboardInterrupt):
                 check()
-            assert seen == [signal.SIGINT]
+            assert seen == [signal.SIGINT, signal.SIGINT]
+            system.others = float(signal.SIGTERM)  # a signal this process has no Python handler for: it stops
+            with pytest.raises(KeyboardInterrupt):
+                check()
+            assert seen == [signal.SIGINT] * 2
+            system.others = 0.0
+            os.kill(os.getpid(), signal.SIGINT)  # after the last check: recorded when the block ends, not raised
+        assert seen == [signal.SIGINT] * 3
         assert signal.getsignal(signal.SIGINT) is handler
         system.size = 1
         with collective_interrupts(system) as check:

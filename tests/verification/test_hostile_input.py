@@ -124,6 +124,12 @@ def test_huge_generated_cloth_is_refused_by_memory(monkeypatch):
     assert "4000000 particles" in msg and "GiB" in msg
     msg = _scene_error(HEAD + "benchmark_cloth: {n: 100000}\n")  # above MAX_GENERATED_PARTICLES
     assert "limit" in msg
+    # not built (a distributed run generates a share per process): checked per process where the count is known
+    scene = yaml_io.load_scene(HEAD + "cloth: {nx: 2000, ny: 2000}\n", build=False)
+    assert scene.model is None and scene.generator["grid"]["nx"] == 2000
+    with pytest.raises(SceneError, match=r"^cloth: generator blocks would create 4000000 particles \(2 processes"):
+        yaml_io.check_generated_memory("cloth", 4_000_000, 2)
+    yaml_io.check_generated_memory("cloth", 4_000_000, 8)  # 1/8 of them fits
 
 
 def test_memory_error_while_building_is_a_scene_error(monkeypatch):
