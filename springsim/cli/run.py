@@ -76,7 +76,7 @@ def _load_agreed(args):
         raise _Exit(2)
     try:
         if many:
-            from ..distributed import generated_part, import_petsc
+            from ..distributed import import_petsc
 
             _, MPI = import_petsc()
             got = MPI.COMM_WORLD.bcast((dataclasses.replace(scene, model=None), cfg) if root else None, root=0)
@@ -84,21 +84,7 @@ def _load_agreed(args):
                 scene, cfg = got  # the scene without its model; the part comes below
             del got
         if cfg.backend == "petsc":
-            if scene.generator is not None and many:  # every rank generates its part: agree on the outcome
-                err, part = None, mine
-                if not root:
-                    try:
-                        part = generated_part(scene.generator, env_size(), env_rank())
-                    except SceneError as e:  # a value only this rank's rows reach (an overflowing position)
-                        err = error_text(e, args.scene)
-                err = next((e for e in MPI.COMM_WORLD.allgather(err) if e is not None), None)  # the lowest rank's
-                if err is not None:
-                    if root:
-                        print(f"springsim: error: {err}", file=sys.stderr)
-                    raise _Exit(2)
-                scene = dataclasses.replace(scene, model=part)
-            else:
-                scene = _scene_parts(scene, mine)
+            scene = _scene_parts(scene, mine, args.scene)
     except (SpringsimError, _Exit):
         raise
     except Exception as e:  # one rank's own failure: end every rank now rather than leave them waiting
@@ -119,18 +105,28 @@ def _verdict(err):
     return MPI.COMM_WORLD.bcast(err, root=0)
 
 
-def _scene_parts(scene, mine=None):
-    """``scene`` with its model replaced by this rank's part: generated on the rank for a scene of one generator
-    block (``mine``: rank 0's, generated already), else sent from rank 0, which holds the model (collective), and
-    the whole model dropped."""
+def _scene_parts(scene, mine=None, path=None):
+    """``scene`` with its model replaced by this rank's part (collective): for a scene of one generator block,
+    generated on every rank (``mine``: this rank's, generated already), the ranks agreeing on errors (a value only
+    some ranks' rows reach, such as an overflowing position: rank 0 prints the lowest rank's, with ``path`` the
+    scene file, and every rank exits 2); else sent from rank 0, which holds the model, and the model dropped."""
     from ..distributed import generated_part, import_petsc, scatter_model
 
     _, MPI = import_petsc()
     comm = MPI.COMM_WORLD
-    if scene.generator is not None:
-        part = mine if mine is not None else generated_part(scene.generator, comm.Get_size(), comm.Get_rank())
-    else:
-        part = scatter_model(scene.model if comm.Get_rank() == 0 else None, comm)
+    if scene.generator is None:
+        return dataclasses.replace(scene, model=scatter_model(scene.model if comm.Get_rank() == 0 else None, comm))
+    err, part = None, mine
+    if part is None:
+        try:
+            part = generated_part(scene.generator, comm.Get_size(), comm.Get_rank())
+        except SceneError as e:
+            err = error_text(e, path)
+    err = next((e for e in comm.allgather(err) if e is not None), None)  # the lowest rank's
+    if err is not None:
+        if comm.Get_rank() == 0:
+            print(f"springsim: error: {err}", file=sys.stderr)
+        raise _Exit(2)
     return dataclasses.replace(scene, model=part)
 
 
@@ -168,7 +164,7 @@ def _run(args: argparse.Namespace) -> int:
         return 2
     scene, cfg = load_and_configure(args)
     if cfg.backend == "petsc":  # one process: its part is the whole model, which is then dropped
-        scene = _scene_parts(scene)
+        scene = _scene_parts(scene, path=args.scene)
         return _run_petsc(args, scene, cfg)
     if args.out is not None:  # before the run: a run is never lost to an unwritable --out
         check_output_path(args.out, suffixes=(".npz",), inputs=(args.scene,))
