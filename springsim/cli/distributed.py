@@ -7,8 +7,9 @@ configuration and its part of the model (no rank keeps the whole model), and str
 collective (global reductions decide blow-ups and Newton; KSP results are global), so every rank stops at the
 same step and rank 0 reports it, saving the frames so far with ``--out``; so do Ctrl-C and SIGTERM, which are only
 recorded until the ranks agree on them after a step (:mod:`springsim.run.interrupts`; during the set-up they wait
-for the first step's end). The other ranks wait for rank 0's save before they exit. Anything else on one rank (a bug, memory exhausted) prints one line naming the rank and aborts the MPI
-job, so no rank waits forever in a collective call.
+for the first step's end). The other ranks wait for rank 0's save before they exit. Anything else on one rank (a
+bug, memory exhausted) prints one line naming the rank and aborts the MPI job, so no rank waits forever in a
+collective call.
 """
 
 from __future__ import annotations

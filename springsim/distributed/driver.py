@@ -99,8 +99,8 @@ def simulate_distributed(model, integrator: str, dt: float, steps: int, *, comm=
 
     With ``out``, the root writes every frame to that file as it is gathered (:class:`springsim.io._spool.FrameSpool`)
     instead of holding them: the file is written atomically at the end, also when the run stops with a
-    :class:`~springsim.errors.SimulationError` or is interrupted (the frames so far), and the trajectory returned has ``q`` and ``qd``
-    None (``meta["out"]`` names the file).
+    :class:`~springsim.errors.SimulationError` or is interrupted (the frames so far), and the trajectory returned
+    has ``q`` and ``qd`` None (``meta["out"]`` names the file).
 
     Parameters
     ----------

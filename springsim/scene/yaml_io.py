@@ -629,7 +629,7 @@ def parse_scene(doc, *, source: str = "<string>", build: bool = True) -> Scene:
     name = doc.get("name") or (Path(source).stem if source != "<string>" else "scene")
     generator = None
     if single:
-        path, kw, paths = cloths[0]
+        _, kw, paths = cloths[0]
         generator = dict(grid=dict(kw), gravity=gravity, up_axis=up, metadata=dict(name=name, source=source),
                          paths=dict(paths))
     if lazy:
