@@ -143,7 +143,7 @@ def simulate_distributed(model, integrator: str, dt: float, steps: int, *, comm=
     ------
     SimulationError
         On every rank, at the same step, for a blow-up or a solver error; on the root it carries the frames so far.
-    SimulationInterrupted
+    ~springsim.errors.SimulationInterrupted
         On every rank, at the same step, when any rank received SIGINT (or SIGTERM handled by Python); on the root
         it carries the frames so far.
     """

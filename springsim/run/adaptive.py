@@ -383,7 +383,7 @@ def simulate_adaptive(model: Model, integrator: str | Integrator, t_end: float, 
         On invalid tolerances, step bounds or frame times (one-line message naming the field).
     SimulationError
         On blow-up or when the step falls below ``h_min``; ``err.trajectory`` has the finite frames.
-    SimulationInterrupted
+    ~springsim.errors.SimulationInterrupted
         On Ctrl-C (a ``KeyboardInterrupt``); ``err.trajectory`` has the frames so far. Over several processes every
         process raises it after the same attempt (:mod:`springsim.run.interrupts`).
     """
