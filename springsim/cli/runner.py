@@ -416,7 +416,8 @@ def load_trajectory_for(path, scene, scene_path):
     A different particle count is an error, found from the array headers before any data is read
     (a 7 MB compressed file announcing 3e8 particles costs nothing); so is a file without frames.
     A different model fingerprint (the file records the model it was computed from) is a one-line
-    warning on stderr.
+    warning on stderr; a file without one (a distributed run of a generated scene: no process had the whole model
+    to hash) is compared by the SHA-256 of the scene file it was run from instead.
 
     Parameters
     ----------
@@ -452,6 +453,9 @@ def load_trajectory_for(path, scene, scene_path):
     if recorded is not None and recorded != scene.model.fingerprint():
         print(f"springsim: warning: {path} was computed from another model than {scene_path} "
               f"(the model fingerprints differ)", file=sys.stderr)
+    elif recorded is None and traj.meta.get("scene_sha256") not in (None, "", scene.sha256) and scene.sha256:
+        print(f"springsim: warning: {path} was computed from another scene file than {scene_path} "
+              f"(it records no model fingerprint, and the files' SHA-256 differ)", file=sys.stderr)
     return traj
 
 

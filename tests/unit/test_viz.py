@@ -130,7 +130,8 @@ def test_cli_registers_plot_render_export(tmp_path, capsys):
 
 
 def test_render_checks_the_trajectory_against_its_scene(tmp_path, capsys):
-    """render of an .npz names a particle-count mismatch (exit 2) and warns when the file was made from another model."""
+    """render of an .npz names a particle-count mismatch (exit 2) and warns when the file was made from another model
+    (by the model fingerprint, or without one by the scene file's SHA-256)."""
     from springsim.cli import main
 
     spring, damped = str(SCENES / "spring.yaml"), str(SCENES / "damped_spring.yaml")
@@ -142,6 +143,16 @@ def test_render_checks_the_trajectory_against_its_scene(tmp_path, capsys):
     assert "computed from another model" in capsys.readouterr().err
     assert main(["render", npz, "--scene", str(SCENES / "three_body.yaml"), "--out", str(tmp_path / "c.png")]) == 2
     assert "has 2 particles" in capsys.readouterr().err
+    # without a model fingerprint (a distributed run of a generated scene), the scene files' hashes decide
+    from springsim.run.driver import Trajectory
+
+    t = Trajectory.load(npz)
+    t.meta["model_fingerprint"] = None
+    t.save(npz)
+    assert main(["render", npz, "--scene", spring, "--out", str(tmp_path / "d.png")]) == 0
+    assert "warning" not in capsys.readouterr().err
+    assert main(["render", npz, "--scene", damped, "--out", str(tmp_path / "e.png")]) == 0
+    assert "computed from another scene file" in capsys.readouterr().err
 
 
 def test_render_keeps_a_scenes_own_springs_beside_a_cloth(tmp_path):
