@@ -22,9 +22,8 @@ vectors and the matrix have block size 3.
   ``solver.petsc_options``) overrides the defaults. The finest level is smoothed by one symmetric SOR
   (Gauss-Seidel) sweep instead of GAMG's Chebyshev/Jacobi (:data:`SPRINGSIM_OPTIONS`); coarse levels keep
   Chebyshev/Jacobi, because GAMG's singleton aggregates leave zero rows there, on which SOR and point-block
-  Jacobi divide by zero. A new KSP and preconditioner for every matrix by default; with
-  ``-springsim_pc_reuse k`` the KSP is kept for up to ``k`` matrices, re-set-up on each new one with GAMG's
-  interpolation kept (PETSc's ``-pc_gamg_reuse_interpolation``, on by default: only the Galerkin coarse
+  Jacobi divide by zero. The KSP is kept for up to ``k`` matrices (``-springsim_pc_reuse k``, default 2; 1 builds
+  a new KSP and preconditioner for every matrix), re-set-up on each new one with GAMG's interpolation kept (PETSc's ``-pc_gamg_reuse_interpolation``, on by default: only the Galerkin coarse
   operators and the smoothers are recomputed). The result is checked against the true residual. A kept
   preconditioner gets ``2 * baseline + 4`` iterations (``baseline``: the fresh solve's count); a miss builds a
   fresh preconditioner and continues from the iterate reached. A miss with a fresh preconditioner is retried
@@ -70,9 +69,10 @@ GAMG_DEFAULTS = {"mg_levels_ksp_chebyshev_esteig": "0,0.1,0,1.3"}
 #:   another ``-pc_type``. On the benchmark cloth (n = 256, linearized implicit Euler) it cuts the CG
 #:   iterations per solve from 32-72 to 21-24 at the same cost per iteration.
 #: * ``-springsim_pc_reuse``: ``k``, keep the KSP and GAMG's interpolation for up to ``k`` matrices (1: a fresh
-#:   preconditioner for every matrix). Off by default: on the falling benchmark cloth the kept interpolation
-#:   needs 1.2-1.5x the iterations on the next step, which about cancels the set-up it saves.
-SPRINGSIM_OPTIONS = {"springsim_fine_smoother": "sor", "springsim_pc_reuse": "1"}
+#:   preconditioner for every matrix). Default 2: on the falling benchmark cloth (n = 256, linearized implicit
+#:   Euler, 4.4 solves per step) the CG iterations stay the same with the finest level's SOR, the set-up per
+#:   step falls by 30 % and the step by 13-16 % on 1 rank and 8 % on 2 (BENCHMARKS.md#distributed).
+SPRINGSIM_OPTIONS = {"springsim_fine_smoother": "sor", "springsim_pc_reuse": "2"}
 
 #: A solve with a kept preconditioner may take ``REUSE_FACTOR * baseline + REUSE_SLACK`` iterations (``baseline``:
 #: the count of the solve that built it) before a fresh one is built (the serial AMG's staleness rule).
