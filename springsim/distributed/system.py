@@ -529,7 +529,7 @@ class DistributedSystem(System):
         box = np.concatenate([pts.min(axis=0), -pts.max(axis=0)]) if pts.size else np.full(6, np.inf)
         box = np.ascontiguousarray(box, dtype=np.float64)
         self.mpi.Allreduce(self.MPI.IN_PLACE, box, op=self.MPI.MIN)
-        local = dict(kinetic=0.5 * float(np.sum(self.mass[:, None] * np.asarray(qd_own) ** 2)),
+        local = dict(kinetic=self._local_kinetic(qd_own),
                      mass=float(self.mass.sum() + np.sum(self.scene.fixed_model.particle_mass)),
                      fixed_unbounded=fixed_unb, parts=parts, floors=floors)
         every = self.mpi.allgather(local)
@@ -558,7 +558,7 @@ class DistributedSystem(System):
         """
         self.exchange(q_own)
         fq = np.asarray(self.scene.fixed_model.particle_q)
-        local = (self._local_potential(self.q_loc) + 0.5 * float(np.sum(self.mass[:, None] * np.asarray(qd_own) ** 2))
+        local = (self._local_potential(self.q_loc) + self._local_kinetic(qd_own)
                  + sum(float(t.potential_energy(fq)) for t in self.fixed_terms if t.conservative))
         return self.sum(local)
 
@@ -716,6 +716,9 @@ class DistributedSystem(System):
         for t in curved:
             t.curvature_remainder(self.q0_loc, self.q_loc, f)
         return self._reverse_add(f, out)
+
+    def _local_kinetic(self, qd_own) -> float:
+        return 0.5 * float(np.sum(self.mass[:, None] * np.asarray(qd_own) ** 2))
 
     def _local_potential(self, q_loc) -> float:
         n = self.part.n_own
