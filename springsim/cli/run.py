@@ -51,16 +51,13 @@ def _load_agreed(args):
             # a scene of one generator block is not built: every rank generates its part (_scene_parts); rank 0
             # generates its own here, which checks the block's values before the verdict
             scene, cfg = load_and_configure(args, build=False)
-            if scene.model is None:
-                if cfg.backend != "petsc":  # one process, the serial backend: the whole model after all
-                    scene, cfg = load_and_configure(args)
-                else:
-                    from ..distributed import generated_part
-                    from ..scene.yaml_io import check_generated_memory
+            if scene.model is None and cfg.backend == "petsc":  # (the serial backend here is refused below)
+                from ..distributed import generated_part
+                from ..scene.yaml_io import check_generated_memory
 
-                    grid = scene.generator["grid"]
-                    check_generated_memory(scene.generator["paths"]["cloth"], grid["nx"] * grid["ny"], env_size())
-                    mine = generated_part(scene.generator, env_size(), 0)
+                grid = scene.generator["grid"]
+                check_generated_memory(scene.generator["paths"]["cloth"], grid["nx"] * grid["ny"], env_size())
+                mine = generated_part(scene.generator, env_size(), 0)
             if args.out is not None:
                 check_output_path(args.out, suffixes=(".npz",), inputs=(args.scene,))
         except (SpringsimError, OSError) as e:
