@@ -139,7 +139,7 @@ def worker(argv) -> int:
         # bytes sent plus received by this rank inside each event (PETSc counts both ends: halve the sum)
         msg = comm.gather({k: sum(PETSc.Log.Event(e).getPerfInfo()["messageLength"] for e in events)
                            for k, events in MESSAGE_EVENTS.items()}, root=0)
-        init, solver = float("nan"), f"petsc CG+GAMG, {ranks} rank(s)"
+        init, solver = float("nan"), f"petsc, {ranks} rank(s)"
         if rank == 0:
             st = traj.stats
             parts = dict(traj.meta["timings"])
@@ -148,6 +148,8 @@ def worker(argv) -> int:
             pc = {f"pc_{k}": v for k, v in traj.meta.get("pc_stats", {}).items()}
             extra = dict(per_rank=traj.meta["per_rank"], msg_bytes={k: sum(m[k] for m in msg) / 2 for k in msg[0]},
                          newton_its=sum(s.newton_iterations for s in st) / max(len(st), 1))
+            pc_name = {"springsim-sa": "SA"}.get(traj.meta.get("preconditioner"), "GAMG")
+            solver = f"petsc CG+{pc_name}, {ranks} rank(s)"
     if rank == 0:
         steps = max(len(st), 1)
         solves = sum(s.linear_solves for s in st)

@@ -285,7 +285,8 @@ def summary_lines(scene, cfg, integrator, traj) -> list[tuple[str, str]]:
         rows.append(("integrator", cfg.integrator))
     meta = traj.meta
     if meta.get("backend") == "petsc":
-        rows.insert(len(rows) - 1, ("backend", f"petsc, {meta['ranks']} MPI rank(s)"))
+        pc = f", preconditioner {meta['preconditioner']}" if meta.get("preconditioner") else ""
+        rows.insert(len(rows) - 1, ("backend", f"petsc, {meta['ranks']} MPI rank(s){pc}"))
     a = traj.adaptive_stats
     if a:
         rows.append(("steps", f"{a['accepted']} adaptive (mean h {a['h_mean']:.3g} s, h in [{a['h_min']:.3g}, "

@@ -16,15 +16,20 @@ vectors and the matrix have block size 3.
   with ``MatSetValuesBlockedLocal`` through the local-to-global map, adding; PETSc sends the ghost rows to
   their owners during assembly. The matrix is preallocated exactly, once, from the local pairs (the ghosts'
   rows' entries sent to their owners, :func:`part_pattern`), and a new nonzero is an error.
-* **Solve** (:meth:`DistributedSystem.solve`): CG with GAMG by default (GMRES when the matrix is not
-  symmetric), the rigid-body modes at the current positions as GAMG's near-null space, then
+* **Solve** (:meth:`DistributedSystem.solve`): CG preconditioned by springsim's smoothed aggregation in PETSc's
+  PCMG by default (:mod:`springsim.distributed.sa`: the serial AMG's hierarchy, aggregates local to each rank,
+  kept for the run; ``-springsim_pc``), GMRES with GAMG when the matrix is not symmetric or the set-up finds it
+  not positive definite. With ``-springsim_pc gamg``: CG with GAMG, the rigid-body modes at the current positions
+  as GAMG's near-null space, then
   ``setFromOptions``, so every ``-ksp_*``/``-pc_*`` option (command line, ``PETSC_OPTIONS``,
   ``solver.petsc_options``) overrides the defaults. The finest level is smoothed by one symmetric SOR
   (Gauss-Seidel) sweep instead of GAMG's Chebyshev/Jacobi (:data:`SPRINGSIM_OPTIONS`); coarse levels keep
   Chebyshev/Jacobi, because GAMG's singleton aggregates leave zero rows there, on which SOR and point-block
   Jacobi divide by zero. The KSP is kept for up to ``k`` matrices (``-springsim_pc_reuse k``, default 2; 1 builds
-  a new KSP and preconditioner for every matrix), re-set-up on each new one with GAMG's interpolation kept (PETSc's ``-pc_gamg_reuse_interpolation``, on by default: only the Galerkin coarse
-  operators and the smoothers are recomputed). The result is checked against the true residual. A kept
+  a new KSP and preconditioner for every matrix), re-set-up on each new one with the interpolation kept (GAMG's
+  ``-pc_gamg_reuse_interpolation``, on by default, or :meth:`~springsim.distributed.sa.SmoothedAggregation.galerkin`:
+  only the Galerkin coarse operators and the smoothers are recomputed). The result is checked against the true
+  residual. A kept
   preconditioner gets ``2 * baseline + 4`` iterations (``baseline``: the fresh solve's count); a miss builds a
   fresh preconditioner and continues from the iterate reached. A miss with a fresh preconditioner is retried
   once with GMRES (fresh again) and five times the iteration limit from that iterate, and reported if that
@@ -44,9 +49,11 @@ from ..assembly import SystemAssembler
 from ..errors import SceneError
 from ..forces import make_force_terms
 from ..linsolve import DEFAULT_RTOL, LinearSolveResult
+from ..linsolve.amg import rigid_body_modes
 from ..system import System
 from ._petsc import import_petsc
 from .partition import PARTITIONERS, LocalPart, contiguous_offsets, pair_families, system_order
+from .sa import SmoothedAggregation
 from .scene import ScenePart, model_part, repartition
 
 __all__ = ["DistributedSystem", "GAMG_DEFAULTS", "SPRINGSIM_OPTIONS", "graph_partition", "owned_row_pattern",
@@ -72,7 +79,15 @@ GAMG_DEFAULTS = {"mg_levels_ksp_chebyshev_esteig": "0,0.1,0,1.3"}
 #:   preconditioner for every matrix). Default 2: on the falling benchmark cloth (n = 256, linearized implicit
 #:   Euler, 4.4 solves per step) the CG iterations stay the same with the finest level's SOR, the set-up per
 #:   step falls by 30 % and the step by 13-16 % on 1 rank and 8 % on 2 (BENCHMARKS.md#distributed).
-SPRINGSIM_OPTIONS = {"springsim_fine_smoother": "sor", "springsim_pc_reuse": "2"}
+#: * ``-springsim_pc``: ``sa`` (springsim's smoothed aggregation in PETSc's PCMG,
+#:   :class:`~springsim.distributed.sa.SmoothedAggregation`: the serial AMG's hierarchy with aggregates local to
+#:   each rank) or ``gamg`` (PETSc's GAMG). ``sa`` needs a symmetric positive definite matrix: a non-symmetric
+#:   one, or one on which its set-up breaks down, gets GAMG. A ``-pc_type`` option overrides both. With ``sa``
+#:   a kept preconditioner keeps the whole hierarchy and takes the new matrix on its finest level only.
+SPRINGSIM_OPTIONS = {"springsim_fine_smoother": "sor", "springsim_pc_reuse": "2", "springsim_pc": "sa"}
+
+#: The values of ``-springsim_pc``.
+SPRINGSIM_PCS = ("sa", "gamg")
 
 #: A solve with a kept preconditioner may take ``REUSE_FACTOR * baseline + REUSE_SLACK`` iterations (``baseline``:
 #: the count of the solve that built it) before a fresh one is built (the serial AMG's staleness rule).
@@ -339,8 +354,10 @@ class DistributedSystem(System):
     petsc_options : str or dict, optional
         PETSc options (``"-pc_gamg_threshold 0.02"`` or ``{"pc_gamg_threshold": 0.02}``) inserted into the
         options database before the solver reads it.
-    ksp_type, pc_type : str
-        Defaults before the options database (``cg`` or ``gmres`` by the matrix symmetry when None; ``gamg``).
+    ksp_type, pc_type : str, optional
+        Defaults before the options database: ``cg`` or ``gmres`` by the matrix symmetry when None; a PETSc
+        preconditioner type, or None for ``-springsim_pc`` (:data:`SPRINGSIM_OPTIONS`: springsim's smoothed
+        aggregation by default, else GAMG).
     partitioner : str
         One of :data:`PARTITIONERS`: ``contiguous`` (default) keeps the serial numbering, so the gathered matrix
         is the serial one; a graph partitioner gives each rank a compact part of the particle graph (fewer
@@ -360,7 +377,7 @@ class DistributedSystem(System):
     holds_fixed = False
 
     def __init__(self, model, comm=None, *, rtol: float = DEFAULT_RTOL, atol: float = 0.0, maxiter: int = 1000,
-                 petsc_options=None, ksp_type: str | None = None, pc_type: str = "gamg",
+                 petsc_options=None, ksp_type: str | None = None, pc_type: str | None = None,
                  partitioner: str = "contiguous", force_kernels: str = "auto"):
         PETSc, MPI = import_petsc()
         self.PETSc, self.MPI = PETSc, MPI
@@ -397,7 +414,7 @@ class DistributedSystem(System):
         p = self.part
         self.free_count = int(scene.free_count)
         self.rtol, self.atol, self.maxiter = float(rtol), float(atol), int(maxiter)
-        self.ksp_type, self.pc_type = ksp_type, pc_type
+        self.ksp_type, self.pc_type = ksp_type, pc_type or "gamg"
         if petsc_options:
             self.insert_options(petsc_options)
         opts = PETSc.Options()
@@ -408,6 +425,13 @@ class DistributedSystem(System):
         if self.fine_smoother not in ("sor", "gamg"):
             raise SceneError("petsc_options", f"-springsim_fine_smoother must be sor or gamg, got "
                                               f"{self.fine_smoother!r:.40}")
+        self.springsim_pc = opts.getString("springsim_pc", SPRINGSIM_OPTIONS["springsim_pc"])
+        if self.springsim_pc not in SPRINGSIM_PCS:
+            raise SceneError("petsc_options", f"-springsim_pc must be {' or '.join(SPRINGSIM_PCS)}, got "
+                                              f"{self.springsim_pc!r:.40}")
+        #: the preconditioner is springsim's smoothed aggregation (no -pc_type option and no other pc_type given)
+        self.use_sa = self.springsim_pc == "sa" and pc_type is None and not opts.hasName("pc_type")
+        self._sa = SmoothedAggregation(PETSc, self.comm) if self.use_sa else None
         try:
             self.pc_reuse = int(opts.getString("springsim_pc_reuse", SPRINGSIM_OPTIONS["springsim_pc_reuse"]))
         except ValueError:
@@ -417,7 +441,8 @@ class DistributedSystem(System):
                                               f"{opts.getString('springsim_pc_reuse')!r:.40}")
         #: the user set a level smoother: the finest level keeps it
         self._user_smoother = any(opts.hasName(k) for k in ("mg_levels_ksp_type", "mg_levels_pc_type"))
-        self._kept = None  # (ksp, ksp type, baseline iterations, solves served, user max_it) of a kept KSP
+        # (ksp, ksp type, baseline iterations, solves served, user max_it, springsim's levels?) of a kept KSP
+        self._kept = None
         #: preconditioner builds, re-set-ups with a kept interpolation, and kept ones found stale
         self.pc_stats = dict(builds=0, reuses=0, stale=0)
         #: ghost scatters forward (owners to ghosts) and in reverse (ghost rows added to their owners), assemblies
@@ -580,7 +605,8 @@ class DistributedSystem(System):
 
     # -- the System interface: set-up and reductions -------------------------------------------------------------
     def metadata(self) -> dict:
-        return {"backend": "petsc", "ranks": self.size, "partitioner": self.partitioner}
+        return {"backend": "petsc", "ranks": self.size, "partitioner": self.partitioner,
+                "preconditioner": "springsim-sa" if self.use_sa else self.pc_type}
 
     def local_state(self, q, qd):
         own = self.part.local_particles[:self.part.n_own]
@@ -852,12 +878,16 @@ class DistributedSystem(System):
         return float(self.mpi.allreduce(local, op=self.MPI.MAX))
 
     # -- solve -----------------------------------------------------------------------------------------------------
-    def _ksp(self, ksp_type: str, maxiter: int, x0_nonzero: bool, rtol: float):
+    def _ksp(self, ksp_type: str, maxiter: int, x0_nonzero: bool, rtol: float, sa_levels: bool = False):
+        """A KSP on :attr:`A`; with ``sa_levels`` its PC is the PCMG over :attr:`_sa`'s levels (built)."""
         PETSc = self.PETSc
         ksp = PETSc.KSP().create(comm=self.comm)
         ksp.setOperators(self.A)
         ksp.setType(ksp_type)
-        ksp.getPC().setType(self.pc_type)
+        if sa_levels:
+            self._sa.configure(ksp.getPC())
+        else:
+            ksp.getPC().setType(self.pc_type)
         ksp.setTolerances(rtol=rtol, atol=self.atol, max_it=maxiter)
         ksp.setNormType(PETSc.KSP.NormType.UNPRECONDITIONED)
         ksp.setInitialGuessNonzero(x0_nonzero)
@@ -880,6 +910,19 @@ class DistributedSystem(System):
         fine.setType("richardson")
         fine.getPC().setType("sor")
         fine.setTolerances(max_it=1)
+
+    def _build_sa(self, kind: str) -> bool:
+        """Build :attr:`_sa`'s levels for :attr:`A` when springsim's smoothed aggregation applies (a symmetric
+        matrix, CG); False when it does not or its set-up broke down (the matrix is not positive definite: GAMG
+        then). Collective."""
+        if not (self.use_sa and self.symmetric and kind == "cg"):
+            return False
+        try:
+            self._sa.build(self.A, rigid_body_modes(np.asarray(self._positions)))
+        except ArithmeticError:  # the same on every rank: the estimate's inner products are all-reduced
+            self._sa.forget()
+            return False
+        return True
 
     def _near_null_space(self):
         coords = self.x.duplicate()
@@ -931,23 +974,27 @@ class DistributedSystem(System):
         its, setup, solve = 0, 0.0, 0.0
         fallback, method, rel, reason = None, "", float("inf"), 0
         target = max(rtol, self.atol / bn)
-        ns = None
+        ns = sa_built = None
         for k, (use_kept, kind, maxiter) in enumerate(attempts):
             if k == 0:
                 x.array[:] = 0.0 if x0 is None else np.asarray(x0).ravel()
             t0 = time.perf_counter()
             if use_kept:
-                ksp, _, baseline, served, user_max = kept
+                ksp, _, baseline, served, user_max, _ = kept
                 cap = min(int(REUSE_FACTOR * baseline + REUSE_SLACK), user_max)
                 ksp.setTolerances(rtol=rtol, atol=self.atol, max_it=cap)
                 ksp.setInitialGuessNonzero(x0 is not None)
+                if kept[5]:
+                    self._sa.galerkin()  # the coarse operators of the new matrix, the prolongators kept
                 ksp.setOperators(self.A)  # new values: GAMG recomputes coarse operators and smoothers
                 self.pc_stats["reuses"] += 1
             else:
                 self._drop_kept()
-                if ns is None:
+                sa = sa_built if sa_built is not None else self._build_sa(kind)
+                sa_built = sa
+                if not sa and ns is None:
                     ns = self._near_null_space()
-                ksp = self._ksp(kind, maxiter, x0_nonzero=(k > 0 or x0 is not None), rtol=rtol)
+                ksp = self._ksp(kind, maxiter, x0_nonzero=(k > 0 or x0 is not None), rtol=rtol, sa_levels=sa)
                 self.pc_stats["builds"] += 1
             ksp.setUp()
             if not use_kept:
@@ -975,7 +1022,7 @@ class DistributedSystem(System):
                 self._drop_kept()
                 continue
             if ok and self.pc_reuse > 1 and kind == first:
-                self._kept = [ksp, kind, max(k_its, 1), 1, ksp.getTolerances()[3]]
+                self._kept = [ksp, kind, max(k_its, 1), 1, ksp.getTolerances()[3], bool(sa_built)]
             else:
                 ksp.destroy()
             if ok:
@@ -1054,5 +1101,7 @@ class DistributedSystem(System):
     def destroy(self) -> None:
         """Free the PETSc objects (matrix, vectors, scatters, kept preconditioner); the system is unusable after."""
         self._drop_kept()
+        if self._sa is not None:
+            self._sa.destroy()
         for obj in (self.A, self.x, self.b, self.w, self.loc, self.scatter, self.lgmap):
             obj.destroy()

@@ -389,15 +389,46 @@ def test_preconditioner_options_and_reuse(ranks, tmp_path):
     assert "-springsim_pc_reuse must be an integer >= 1, got '0'" in r["-springsim_pc_reuse 0"]
     assert "-springsim_pc_reuse must be an integer >= 1, got 'x'" in r["-springsim_pc_reuse x"]
     assert "-springsim_fine_smoother must be sor or gamg, got 'ilu'" in r["-springsim_fine_smoother ilu"]
+    assert "-springsim_pc must be sa or gamg, got 'ml'" in r["-springsim_pc ml"]
     assert r["fine_default"] == "richardson+sor"
     assert r["fine_gamg"] == r["fine_user"] == "chebyshev+jacobi"
-    first, same, stiff = r["solves"]
+    first, same, stiff = r["solves_gamg"]
     assert first["builds"] == 1 and first["reuses"] == 0 and first["ok"]
     assert same["builds"] == 1 and same["reuses"] == 1 and same["stale"] == 0 and same["ok"]
     assert stiff["reuses"] == 2 and stiff["stale"] == 1 and stiff["builds"] == 2 and stiff["ok"]
     assert stiff["method"] == "petsc cg+gamg" and stiff["fallback"] is None
-    for s in r["solves"]:
+    # springsim's levels: kept with their prolongators, the coarse operators of the new matrix recomputed
+    first, same, stiff = r["solves_sa"]
+    assert first["builds"] == 1 and first["reuses"] == 0 and first["ok"]
+    assert same["builds"] == 1 and same["reuses"] == 1 and same["stale"] == 0 and same["ok"]
+    assert stiff["reuses"] == 2 and stiff["ok"] and stiff["method"] == "petsc cg+mg" and stiff["fallback"] is None
+    for s in r["solves_gamg"] + r["solves_sa"]:
         assert s["residual"] <= 1.01e-8
+
+
+@needs_petsc
+@pytest.mark.parametrize("ranks", [1, 2, 3])
+def test_smoothed_aggregation_levels(ranks, tmp_path):
+    """springsim's smoothed aggregation in PCMG (springsim.distributed.sa): the serial set-up's levels on one rank
+    (same sizes, the same coarse operator to round-off), rank-local aggregates on several; CG solves a perturbed
+    cloth and a straight rope (zero prolongator columns, given unit diagonals) to the tolerance; the Galerkin
+    recomputation with kept prolongators is exact; an indefinite matrix is never a silent wrong answer."""
+    import json
+
+    out = tmp_path / "sa.json"
+    mpirun(ranks, "sa_levels", str(out))
+    r = json.loads(out.read_text())
+    for case in ("cloth", "rope"):
+        assert r[case]["ok"] and r[case]["method"] == "petsc cg+mg" and r[case]["residual"] <= 1.01e-8
+    assert r["cloth"]["its"] <= 15 and r["rope"]["its"] <= 10
+    assert r["cloth_levels"][0] == 720 and len(r["cloth_levels"]) >= 2
+    if ranks == 1:
+        assert r["serial_levels"] == r["cloth_levels"]
+        assert r["coarse_diff"] < 1e-12
+    assert r["galerkin_diff"] < 1e-12
+    assert r["rope"]["dead"] > 0  # collinear aggregates: the rotation about the rope has no column
+    ind = r["indefinite"]
+    assert (ind["ok"] and ind["residual"] <= 1.01e-8) or (not ind["ok"] and ind["failure"])
 
 
 @needs_petsc
