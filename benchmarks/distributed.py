@@ -5,17 +5,18 @@ For each cloth size ``n`` (default 256 512; ``benchmark_cloth(n)``, linearized i
 
 * **serial**: springsim's own path (``auto`` -> AMG-CG with the pyamg hierarchy), ``springsim.simulate``;
 * **petsc, r ranks** for every ``r`` of ``--ranks`` (default 1 2): ``mpiexec -n r`` running
-  :func:`springsim.distributed.simulate_distributed` (KSP CG + GAMG, PETSc options from ``--petsc-options``) on the
-  cloth each rank generates for itself (:func:`springsim.distributed.benchmark_cloth_part`; ``--build replicated``:
+  :func:`springsim.distributed.simulate_distributed` (KSP CG with springsim's smoothed aggregation, PETSc
+  options from ``--petsc-options``) on the cloth each rank generates for itself (:func:`springsim.distributed.benchmark_cloth_part`; ``--build replicated``:
   every rank builds the whole model, as before).
 
-``--steps`` steps each (default 3; the first includes no extra set-up: every step builds its preconditioner).
+``--steps`` steps each (default 3; the first includes no extra set-up beyond the preconditioner's first build).
 Reported per step (rank 0's wall time, averaged over the steps): total, its ratio to the serial row's
 (``ratio_to_serial``), rank 0's CPU time (``cpu_step_s``: less sensitive than wall time to other processes on a
 shared machine), force evaluation, assembly (the local COO scatter), insertion into the PETSc matrix
 (communication of ghost rows included), ghost exchange, preconditioner set-up, Krylov solve; linear solves and
 iterations per step, iterations per solve and their ratio to the serial path's; preconditioner builds, re-set-ups
-with a kept interpolation and stale kept ones (``-springsim_pc_reuse``); peak resident memory of every rank
+with a kept interpolation, stale kept ones (``-springsim_pc_reuse``) and kept springsim levels whose coarse
+operators were recomputed (``pc_coarse_updates``); peak resident memory of every rank
 (``ru_maxrss``); set-up before the first step (partition, pattern, preallocation); the 1-minute load average
 before the configuration ran (``load``: state it with every figure; on a machine with c cores, a load near c
 before the run means the ranks shared their cores). **Error**: the largest
@@ -64,14 +65,15 @@ __all__ = ["COLUMNS", "WEAK_COLUMNS", "main", "weak_row", "weak_side", "worker"]
 
 COLUMNS = ["n", "dofs", "config", "ranks", "steps", "step_s", "ratio_to_serial", "cpu_step_s", "force_s", "assembly_s",
            "insert_s", "exchange_s", "setup_s", "solve_s", "linear_solves", "linear_its", "its_per_solve",
-           "its_ratio_to_serial", "pc_builds", "pc_reuses", "pc_stale", "init_s", "max_rss_mb", "diff_to_serial_m",
-           "max_linear_residual", "failed_steps", "load", "petsc_options"]
+           "its_ratio_to_serial", "pc_builds", "pc_reuses", "pc_stale", "pc_coarse_updates", "init_s", "max_rss_mb",
+           "diff_to_serial_m", "max_linear_residual", "failed_steps", "load", "petsc_options"]
 
 #: PETSc events whose message lengths the petsc runs report (``PETSc.Log``): vector scatters (the ghost exchanges and
 #: the matrix-vector products' halo exchanges), matrix assembly (off-process entries, GAMG's own matrices included),
-#: preconditioner set-up and Krylov solves (inclusive: they contain scatters and assemblies of their own)
+#: preconditioner set-up (PETSc's, and springsim's levels built outside it: ``springsim.distributed.sa.LOG_EVENT``)
+#: and Krylov solves (inclusive: they contain scatters and assemblies of their own)
 MESSAGE_EVENTS = {"scatter": ("VecScatterBegin", "VecScatterEnd"), "assembly": ("MatAssemblyBegin", "MatAssemblyEnd"),
-                  "pc_setup": ("PCSetUp",), "ksp_solve": ("KSPSolve",)}
+                  "pc_setup": ("PCSetUp", "SpringsimSASetUp"), "ksp_solve": ("KSPSolve",)}
 
 
 #: Columns of ``--weak``: per step unless named otherwise; ``*_max`` the largest over ranks, ``efficiency`` the 1-rank
@@ -100,7 +102,7 @@ def worker(argv) -> int:
     model = benchmark_cloth(a.n) if a.mode == "serial" or a.build == "replicated" else None
     dt = 1.0 / 60.0
     t0 = time.perf_counter()
-    pc = dict(pc_builds=float("nan"), pc_reuses=float("nan"), pc_stale=float("nan"))
+    pc = dict(pc_builds=float("nan"), pc_reuses=float("nan"), pc_stale=float("nan"), pc_coarse_updates=float("nan"))
     extra = {}
     if a.mode == "serial":
         from springsim import simulate

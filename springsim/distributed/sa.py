@@ -39,7 +39,10 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.linalg import eigh_tridiagonal
 
-__all__ = ["SmoothedAggregation"]
+__all__ = ["LOG_EVENT", "SmoothedAggregation"]
+
+#: Name of the PETSc log event around every set-up (``-log_view``, ``PETSc.Log.Event(LOG_EVENT).getPerfInfo()``).
+LOG_EVENT = "SpringsimSASetUp"
 
 
 def _local_csr(M) -> sp.csr_matrix:
@@ -144,6 +147,8 @@ class SmoothedAggregation:
         self.max_coarse, self.max_direct, self.max_levels = int(max_coarse), int(max_direct), int(max_levels)
         self.lanczos_steps, self.warm_lanczos_steps = int(lanczos_steps), int(warm_lanczos_steps)
         self.levels: list[_Level] = []
+        #: PETSc log event of :meth:`build` and :meth:`galerkin` (its message lengths are their communication)
+        self.event = PETSc.Log.Event(LOG_EVENT)
         self._kept: list[tuple] = []  # per level: (aggregates, ritz) for the next matrix of the same pattern
 
     # -- set-up ----------------------------------------------------------------------------------------------------
@@ -180,6 +185,13 @@ class SmoothedAggregation:
         ArithmeticError
             When a spectral-radius estimate breaks down (``A`` not positive definite), on every rank.
         """
+        self.event.begin()
+        try:
+            return self._build(A, B_own, block)
+        finally:
+            self.event.end()
+
+    def _build(self, A, B_own: np.ndarray, block: int) -> list:
         PETSc, mpi = self.PETSc, self.mpi
         old = self.levels
         if old:
@@ -231,8 +243,12 @@ class SmoothedAggregation:
     def galerkin(self) -> None:
         """Recompute the coarse operators ``P^T A P`` from the finest operator's current values, the prolongators
         kept (PETSc's ``-pc_gamg_reuse_interpolation`` for these levels). Collective."""
-        for lv, coarse in zip(self.levels[:-1], self.levels[1:]):
-            self._coarse_operator(lv, coarse)
+        self.event.begin()
+        try:
+            for lv, coarse in zip(self.levels[:-1], self.levels[1:]):
+                self._coarse_operator(lv, coarse)
+        finally:
+            self.event.end()
 
     def _coarse_operator(self, lv: _Level, coarse: _Level) -> None:
         """``coarse.A = P^T (A P)`` of ``lv``, by the kept transpose and two products (about 0.6x the time of

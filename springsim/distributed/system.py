@@ -441,10 +441,12 @@ class DistributedSystem(System):
                                               f"{opts.getString('springsim_pc_reuse')!r:.40}")
         #: the user set a level smoother: the finest level keeps it
         self._user_smoother = any(opts.hasName(k) for k in ("mg_levels_ksp_type", "mg_levels_pc_type"))
-        # (ksp, ksp type, baseline iterations, solves served, user max_it, springsim's levels?) of a kept KSP
+        # (ksp, ksp type, baseline iterations, solves served, user max_it, springsim's levels?, the (a, b) of the
+        # matrix it was built for) of a kept KSP
         self._kept = None
-        #: preconditioner builds, re-set-ups with a kept interpolation, and kept ones found stale
-        self.pc_stats = dict(builds=0, reuses=0, stale=0)
+        #: preconditioner builds, re-set-ups with a kept interpolation, kept ones found stale, and (springsim's
+        #: levels) kept ones whose coarse operators were recomputed for a matrix of other coefficients
+        self.pc_stats = dict(builds=0, reuses=0, stale=0, coarse_updates=0)
         #: ghost scatters forward (owners to ghosts) and in reverse (ghost rows added to their owners), assemblies
         self.comm_counts = dict(forward_scatters=0, reverse_scatters=0, assemblies=0)
         self._offproc_blocks = 0  # 3x3 blocks of the local matrix in ghost rows (sent to their owners)
@@ -809,6 +811,7 @@ class DistributedSystem(System):
         A.assemble()
         self.symmetric = self.all(bool(m.symmetric))
         self._positions = q_own
+        self._coefficients = (float(a), float(b))
         self.comm_counts["assemblies"] += 1
         self._last_assembly_s = time.perf_counter() - t0
         self.timings["assembly_s"] += t1 - t0
@@ -980,12 +983,13 @@ class DistributedSystem(System):
                 x.array[:] = 0.0 if x0 is None else np.asarray(x0).ravel()
             t0 = time.perf_counter()
             if use_kept:
-                ksp, _, baseline, served, user_max, _ = kept
+                ksp, _, baseline, served, user_max, _, _ = kept
                 cap = min(int(REUSE_FACTOR * baseline + REUSE_SLACK), user_max)
                 ksp.setTolerances(rtol=rtol, atol=self.atol, max_it=cap)
                 ksp.setInitialGuessNonzero(x0 is not None)
-                if kept[5]:
-                    self._sa.galerkin()  # the coarse operators of the new matrix, the prolongators kept
+                if kept[5] and kept[6] != self._coefficients:
+                    self._sa.galerkin()  # another step size: the coarse operators of the new matrix
+                    self.pc_stats["coarse_updates"] += 1  # the coarse operators of the new matrix, the prolongators kept
                 ksp.setOperators(self.A)  # new values: GAMG recomputes coarse operators and smoothers
                 self.pc_stats["reuses"] += 1
             else:
@@ -1022,7 +1026,7 @@ class DistributedSystem(System):
                 self._drop_kept()
                 continue
             if ok and self.pc_reuse > 1 and kind == first:
-                self._kept = [ksp, kind, max(k_its, 1), 1, ksp.getTolerances()[3], bool(sa_built)]
+                self._kept = [ksp, kind, max(k_its, 1), 1, ksp.getTolerances()[3], bool(sa_built), self._coefficients]
             else:
                 ksp.destroy()
             if ok:

@@ -397,11 +397,14 @@ def test_preconditioner_options_and_reuse(ranks, tmp_path):
     assert same["builds"] == 1 and same["reuses"] == 1 and same["stale"] == 0 and same["ok"]
     assert stiff["reuses"] == 2 and stiff["stale"] == 1 and stiff["builds"] == 2 and stiff["ok"]
     assert stiff["method"] == "petsc cg+gamg" and stiff["fallback"] is None
-    # springsim's levels: kept with their prolongators, the coarse operators of the new matrix recomputed
+    # springsim's levels: kept whole for a matrix of the same coefficients, the coarse operators recomputed for
+    # other coefficients (the prolongators kept)
     first, same, stiff = r["solves_sa"]
     assert first["builds"] == 1 and first["reuses"] == 0 and first["ok"]
     assert same["builds"] == 1 and same["reuses"] == 1 and same["stale"] == 0 and same["ok"]
+    assert same["coarse_updates"] == 0
     assert stiff["reuses"] == 2 and stiff["ok"] and stiff["method"] == "petsc cg+mg" and stiff["fallback"] is None
+    assert stiff["coarse_updates"] == 1
     for s in r["solves_gamg"] + r["solves_sa"]:
         assert s["residual"] <= 1.01e-8
 
