@@ -336,7 +336,13 @@ class SmoothedAggregation:
 
     # -- the preconditioner ----------------------------------------------------------------------------------------
     def configure(self, pc) -> None:
-        """Make ``pc`` a PCMG over :attr:`levels` (call after :meth:`build` and before ``setFromOptions``)."""
+        """Make ``pc`` a PCMG over :attr:`levels` (call after :meth:`build` and before ``setFromOptions``).
+
+        Parameters
+        ----------
+        pc : petsc4py PC
+            The preconditioner of a KSP whose operator is the finest level's matrix.
+        """
         PETSc = self.PETSc
         levels = self.levels
         L = len(levels)
