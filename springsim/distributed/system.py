@@ -28,8 +28,9 @@ vectors and the matrix have block size 3.
   Jacobi divide by zero. The KSP is kept for up to ``k`` matrices (``-springsim_pc_reuse k``, default 2; 1 builds
   a new KSP and preconditioner for every matrix), re-set-up on each new one with the interpolation kept (GAMG's
   ``-pc_gamg_reuse_interpolation``, on by default, or :meth:`~springsim.distributed.sa.SmoothedAggregation.galerkin`:
-  only the Galerkin coarse operators and the smoothers are recomputed). The result is checked against the true
-  residual. A kept
+  only the Galerkin coarse operators and the smoothers are recomputed; springsim's levels serve a matrix of the
+  same coefficients whole until that once goes stale, :data:`SPRINGSIM_OPTIONS`). The result is checked against
+  the true residual. A kept
   preconditioner gets ``2 * baseline + 4`` iterations (``baseline``: the fresh solve's count); a miss builds a
   fresh preconditioner and continues from the iterate reached. A miss with a fresh preconditioner is retried
   once with GMRES (fresh again) and five times the iteration limit from that iterate, and reported if that
@@ -83,7 +84,9 @@ GAMG_DEFAULTS = {"mg_levels_ksp_chebyshev_esteig": "0,0.1,0,1.3"}
 #:   :class:`~springsim.distributed.sa.SmoothedAggregation`: the serial AMG's hierarchy with aggregates local to
 #:   each rank) or ``gamg`` (PETSc's GAMG). ``sa`` needs a symmetric positive definite matrix: a non-symmetric
 #:   one, or one on which its set-up breaks down, gets GAMG. A ``-pc_type`` option overrides both. With ``sa``
-#:   a kept preconditioner keeps the whole hierarchy and takes the new matrix on its finest level only.
+#:   a kept preconditioner serves a matrix assembled with the same coefficients ``(a, b)`` whole (the new matrix
+#:   on its finest level only) until that once goes stale in the run, and otherwise with its coarse operators
+#:   recomputed (the prolongators kept; ``pc_stats["coarse_updates"]``).
 SPRINGSIM_OPTIONS = {"springsim_fine_smoother": "sor", "springsim_pc_reuse": "2", "springsim_pc": "sa"}
 
 #: The values of ``-springsim_pc``.
@@ -432,6 +435,8 @@ class DistributedSystem(System):
         #: the preconditioner is springsim's smoothed aggregation (no -pc_type option and no other pc_type given)
         self.use_sa = self.springsim_pc == "sa" and pc_type is None and not opts.hasName("pc_type")
         self._sa = SmoothedAggregation(PETSc, self.comm) if self.use_sa else None
+        self._sa_whole = True  # kept levels serve a matrix of the same coefficients whole (until that goes stale)
+        self._coefficients = None  # (a, b) of the last assembly
         try:
             self.pc_reuse = int(opts.getString("springsim_pc_reuse", SPRINGSIM_OPTIONS["springsim_pc_reuse"]))
         except ValueError:
@@ -971,25 +976,34 @@ class DistributedSystem(System):
         reuse = kept is not None and kept[1] == first and kept[3] < self.pc_reuse
         if not reuse:
             self._drop_kept()
-        # (kept?, Krylov method, iteration limit): a kept preconditioner first, then fresh ones
-        attempts = ([(True, first, 0)] if reuse else []) + [(False, first, self.maxiter),
-                                                           (False, "gmres", 5 * self.maxiter)]
+        # (preconditioner, Krylov method, iteration limit): a kept one first, then fresh ones. springsim's levels are
+        # kept whole for a matrix of the same coefficients until that once goes stale, and with the coarse operators
+        # recomputed otherwise ("kept", "whole", "coarse", "fresh")
+        attempts = []
+        if reuse and kept[5]:
+            if kept[6] == self._coefficients and self._sa_whole:
+                attempts.append(("whole", first, 0))
+            attempts.append(("coarse", first, 0))
+        elif reuse:
+            attempts.append(("kept", first, 0))
+        attempts += [("fresh", first, self.maxiter), ("fresh", "gmres", 5 * self.maxiter)]
         its, setup, solve = 0, 0.0, 0.0
         fallback, method, rel, reason = None, "", float("inf"), 0
         target = max(rtol, self.atol / bn)
         ns = sa_built = None
-        for k, (use_kept, kind, maxiter) in enumerate(attempts):
+        for k, (mode, kind, maxiter) in enumerate(attempts):
             if k == 0:
                 x.array[:] = 0.0 if x0 is None else np.asarray(x0).ravel()
+            use_kept = mode != "fresh"
             t0 = time.perf_counter()
             if use_kept:
                 ksp, _, baseline, served, user_max, _, _ = kept
                 cap = min(int(REUSE_FACTOR * baseline + REUSE_SLACK), user_max)
                 ksp.setTolerances(rtol=rtol, atol=self.atol, max_it=cap)
-                ksp.setInitialGuessNonzero(x0 is not None)
-                if kept[5] and kept[6] != self._coefficients:
-                    self._sa.galerkin()  # another step size: the coarse operators of the new matrix
-                    self.pc_stats["coarse_updates"] += 1  # the coarse operators of the new matrix, the prolongators kept
+                ksp.setInitialGuessNonzero(k > 0 or x0 is not None)
+                if mode == "coarse":
+                    self._sa.galerkin()  # the coarse operators of the new matrix, the prolongators kept
+                    self.pc_stats["coarse_updates"] += 1
                 ksp.setOperators(self.A)  # new values: GAMG recomputes coarse operators and smoothers
                 self.pc_stats["reuses"] += 1
             else:
@@ -1022,8 +1036,11 @@ class DistributedSystem(System):
                 if ok:
                     kept[3] += 1
                     break
-                self.pc_stats["stale"] += 1  # a fresh preconditioner continues from the iterate
-                self._drop_kept()
+                self.pc_stats["stale"] += 1  # the next attempt continues from the iterate
+                if mode == "whole":
+                    self._sa_whole = False  # this run's matrices move too far between solves: recompute from now on
+                else:
+                    self._drop_kept()
                 continue
             if ok and self.pc_reuse > 1 and kind == first:
                 self._kept = [ksp, kind, max(k_its, 1), 1, ksp.getTolerances()[3], bool(sa_built), self._coefficients]
