@@ -2,7 +2,7 @@
 
 The serial AMG-CG (:mod:`springsim.linsolve.amg`, :func:`springsim.linsolve._sa.smoothed_aggregation_levels`)
 needs 7-8 CG iterations per stage solve of the benchmark cloth where PETSc's GAMG, configured as closely as its
-options allow, needs 27-35 (benchmarks/notes/2026-12-05-petsc-gamg.md): GAMG cannot be given the serial
+options allow, needs 14-35 (BENCHMARKS.md#distributed): GAMG cannot be given the serial
 set-up's choices (symmetric strength on the blocks' Frobenius norms, pyamg's standard aggregation, the
 candidates fitted per aggregate, one Jacobi step with the inverted block diagonal weighted by a Lanczos estimate
 of ``rho(D^-1 A)``). :class:`SmoothedAggregation` builds that hierarchy on the distributed matrix:
@@ -204,8 +204,11 @@ class SmoothedAggregation:
             n_nodes = Ak.getLocalSize()[0] // bs
             if mpi.allreduce(n_nodes) <= self.max_coarse:
                 break
-            if lv.aggregates is None or lv.aggregates.shape[0] != n_nodes:
+            if lv.aggregates is None or lv.aggregates.shape[0] != n_nodes:  # first build (or a new pattern)
                 lv.destroy(operator=False)
+                for stale in old[li + 1:]:  # their sizes follow these aggregates
+                    stale.destroy()
+                old = old[:li + 1]
                 agg = _aggregate(_local_csr(Ak), bs, self.theta)
                 lv.aggregates, lv.ritz = agg[:, np.bincount(agg.indices, minlength=agg.shape[1]) > 0], None
             agg = lv.aggregates

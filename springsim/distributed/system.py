@@ -83,7 +83,7 @@ GAMG_DEFAULTS = {"mg_levels_ksp_chebyshev_esteig": "0,0.1,0,1.3"}
 #: * ``-springsim_pc``: ``sa`` (springsim's smoothed aggregation in PETSc's PCMG,
 #:   :class:`~springsim.distributed.sa.SmoothedAggregation`: the serial AMG's hierarchy with aggregates local to
 #:   each rank) or ``gamg`` (PETSc's GAMG). ``sa`` needs a symmetric positive definite matrix: a non-symmetric
-#:   one, or one on which its set-up breaks down, gets GAMG. A ``-pc_type`` option overrides both. With ``sa``
+#:   one, or one on which its set-up breaks down, gets GAMG, and so does the GMRES retry of a missed solve. A ``-pc_type`` option overrides both. With ``sa``
 #:   a kept preconditioner serves a matrix assembled with the same coefficients ``(a, b)`` whole (the new matrix
 #:   on its finest level only) until that once goes stale in the run, and otherwise with its coarse operators
 #:   recomputed (the prolongators kept; ``pc_stats["coarse_updates"]``).
@@ -990,7 +990,7 @@ class DistributedSystem(System):
         its, setup, solve = 0, 0.0, 0.0
         fallback, method, rel, reason = None, "", float("inf"), 0
         target = max(rtol, self.atol / bn)
-        ns = sa_built = None
+        ns, sa_built = None, False
         for k, (mode, kind, maxiter) in enumerate(attempts):
             if k == 0:
                 x.array[:] = 0.0 if x0 is None else np.asarray(x0).ravel()
@@ -1004,15 +1004,14 @@ class DistributedSystem(System):
                 if mode == "coarse":
                     self._sa.galerkin()  # the coarse operators of the new matrix, the prolongators kept
                     self.pc_stats["coarse_updates"] += 1
-                ksp.setOperators(self.A)  # new values: GAMG recomputes coarse operators and smoothers
+                ksp.setOperators(self.A)  # new values: smoothers (and GAMG's coarse operators) set up again
                 self.pc_stats["reuses"] += 1
             else:
                 self._drop_kept()
-                sa = sa_built if sa_built is not None else self._build_sa(kind)
-                sa_built = sa
-                if not sa and ns is None:
+                sa_built = self._build_sa(kind)  # the GMRES retry gets GAMG
+                if not sa_built and ns is None:
                     ns = self._near_null_space()
-                ksp = self._ksp(kind, maxiter, x0_nonzero=(k > 0 or x0 is not None), rtol=rtol, sa_levels=sa)
+                ksp = self._ksp(kind, maxiter, x0_nonzero=(k > 0 or x0 is not None), rtol=rtol, sa_levels=sa_built)
                 self.pc_stats["builds"] += 1
             ksp.setUp()
             if not use_kept:
