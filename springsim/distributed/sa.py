@@ -13,15 +13,17 @@ of ``rho(D^-1 A)``). :class:`SmoothedAggregation` builds that hierarchy on the d
   and an aggregate of the level above on the coarser ones; the aggregates of every level are kept for the next
   matrix of the same pattern (the strength graph follows the springs, whose set never changes).
 * **Candidates** (the six rigid-body modes at the current positions on the finest level) are fitted per
-  aggregate by pyamg's :func:`~pyamg.aggregation.tentative.fit_candidates` over the aggregate's DOFs; a
-  candidate an aggregate cannot represent (two particles carry five rigid modes) gives a zero column of ``T``,
-  which is dropped, so no coarse operator has a zero row (on which the SOR smoother would divide by zero);
-  nodes of coarse levels then have 1 to 6 DOFs.
+  aggregate by pyamg's :func:`~pyamg.aggregation.tentative.fit_candidates`; a candidate an aggregate cannot
+  represent (collinear particles carry five rigid modes) gives a zero column of ``T``, whose coarse row gets a
+  unit diagonal: a decoupled row the coarse correction leaves at zero, where SOR would otherwise divide by zero.
+  Coarse nodes keep six DOFs, so every level has uniform point blocks.
 * **Prolongator smoothing** ``P = T - (omega / rho) D^-1 A T``: ``A T`` by PETSc's parallel ``MatMatMult`` (it
-  fetches the rows of ``T`` other ranks own), ``D^-1`` the inverted diagonal node blocks applied to the owned
-  rows, ``rho`` from a Lanczos run on ``D^-1 A`` in the ``D`` inner product (12 steps, or 4 from the level's
+  fetches the rows of ``T`` other ranks own), ``D^-1`` the inverted point blocks (``MatInvertBlockDiagonal``) as a
+  block-diagonal matrix, ``rho`` from a Lanczos run on ``D^-1 A`` in the ``D`` inner product (12 steps, or 4 from the level's
   previous top Ritz vector, as serially: :func:`springsim.linsolve._sa.lanczos_rho`).
-* **Coarse operators** ``P^T (A P)`` by PETSc's parallel products; the coarsest level (at most ``max_coarse``
+* **Coarse operators** ``P^T (A P)`` by an explicit transpose and two parallel products (about 0.6x the time of
+  ``MatPtAP``). Every product keeps its result matrix, so its symbolic phase is done once per run; that costs
+  memory (about 1.3-1.7x GAMG's peak). The coarsest level (at most ``max_coarse``
   nodes over all ranks, or where aggregation stops coarsening) is factorised by LU, redundantly on every rank
   when there are several, or smoothed like the others when it is larger than ``max_direct`` DOFs.
 * :meth:`SmoothedAggregation.configure` puts the levels into a ``PCMG``: a multiplicative V-cycle, every level
@@ -65,7 +67,7 @@ def _aggregate(A: sp.csr_matrix, bs: int, theta: float) -> sp.csr_matrix:
     return standard_aggregation(C)[0].tocsr()
 
 
-def _tentative(agg: sp.csr_matrix, B: np.ndarray, bs: int):
+def _tentative(agg: sp.csr_matrix, B: np.ndarray):
     """pyamg's :func:`~pyamg.aggregation.tentative.fit_candidates` on the owned nodes: ``T`` (owned rows, local
     columns), the coarse candidates, and the coarse DOFs whose column of ``T`` is zero (``dead``)."""
     from pyamg.aggregation.tentative import fit_candidates
@@ -149,7 +151,6 @@ class SmoothedAggregation:
         self.levels: list[_Level] = []
         #: PETSc log event of :meth:`build` and :meth:`galerkin` (its message lengths are their communication)
         self.event = PETSc.Log.Event(LOG_EVENT)
-        self._kept: list[tuple] = []  # per level: (aggregates, ritz) for the next matrix of the same pattern
 
     # -- set-up ----------------------------------------------------------------------------------------------------
     def forget(self) -> None:
@@ -216,7 +217,7 @@ class SmoothedAggregation:
             if n_agg >= mpi.allreduce(n_nodes) or n_agg == 0:
                 break  # nothing (left) to coarsen
             k = Bk.shape[1]
-            Tl, Bc, dead = _tentative(agg, Bk, bs)
+            Tl, Bc, dead = _tentative(agg, Bk)
             lv.T = self._fill(lv.T, Tl, (bs, k), mpi.exscan(Tl.shape[1]) or 0)
             Dinv = np.asarray(Ak.invertBlockDiagonal()).reshape(-1, bs, bs)
             lv.Dinv = self._fill(lv.Dinv, _block_diagonal(Dinv), (bs, bs), Ak.getOwnershipRange()[0])
