@@ -244,7 +244,7 @@ def sa_levels(out):
     h = BENCHMARK_DT
     report = {}
 
-    def serial_csr(M):
+    def whole_dense(M):
         """The whole PETSc matrix on every rank, dense (small matrices only)."""
         from petsc4py import PETSc as P
         rows, cols = (P.IS().createStride(n, 0, 1, comm=P.COMM_SELF) for n in M.getSize())
@@ -269,17 +269,17 @@ def sa_levels(out):
     report["cloth_levels"] = [lv.A.getSize()[0] for lv in levels]
     if s.size == 1:  # the serial set-up of the same matrix
         import scipy.sparse as sp
-        bsr = sp.csr_matrix(serial_csr(s.A)).tobsr(blocksize=(3, 3))
+        bsr = sp.csr_matrix(whole_dense(s.A)).tobsr(blocksize=(3, 3))
         ref, _ = smoothed_aggregation_levels(bsr, rigid_body_modes(q))
         report["serial_levels"] = [lv.A.shape[0] for lv in ref]
-        report["coarse_diff"] = float(np.abs(serial_csr(levels[1].A) - ref[1].A.toarray()).max()
+        report["coarse_diff"] = float(np.abs(whole_dense(levels[1].A) - ref[1].A.toarray()).max()
                                       / np.abs(ref[1].A.toarray()).max())
     # galerkin() with new values equals a build with the same prolongators
     A = s.assemble(q, v, 4 * h * h, 2 * h, "spd")
     s._sa.galerkin()
-    kept = serial_csr(levels[-1].A)
-    Ps = [serial_csr(lv.P) for lv in levels[:-1]]
-    Af = serial_csr(s.A)
+    kept = whole_dense(levels[-1].A)
+    Ps = [whole_dense(lv.P) for lv in levels[:-1]]
+    Af = whole_dense(s.A)
     for P in Ps:
         Af = P.T @ Af @ P
     report["galerkin_diff"] = float(np.abs(kept - Af).max() / np.abs(Af).max())
