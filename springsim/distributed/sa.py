@@ -39,7 +39,8 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.linalg import eigh_tridiagonal
+
+from ..linsolve._sa import _block_diagonal_operator, lanczos_recurrence
 
 __all__ = ["LOG_EVENT", "SmoothedAggregation"]
 
@@ -83,8 +84,7 @@ def _tentative(agg: sp.csr_matrix, B: np.ndarray):
 
 def _block_diagonal(blocks: np.ndarray) -> sp.csr_matrix:
     """The (nb, bs, bs) blocks as a block-diagonal CSR matrix."""
-    nb, bs = blocks.shape[0], blocks.shape[1]
-    return sp.bsr_matrix((blocks, np.arange(nb), np.arange(nb + 1)), shape=(nb * bs, nb * bs)).tocsr()
+    return _block_diagonal_operator(blocks).tocsr()
 
 
 class _Level:
@@ -289,54 +289,28 @@ class SmoothedAggregation:
 
     def _lanczos(self, A, D: np.ndarray, Dinv: np.ndarray, start):
         """``(rho, y)``: the largest Ritz value of ``D^-1 A`` in the ``D`` inner product (``D`` and ``D^-1`` the
-        owned diagonal node blocks) and its Ritz vector's owned rows (:func:`springsim.linsolve._sa.lanczos_rho`,
-        distributed)."""
+        owned diagonal node blocks) and its Ritz vector's owned rows: the serial recurrence
+        (:func:`springsim.linsolve._sa.lanczos_recurrence`) with PETSc's product and all-reduced inner products."""
         mpi = self.mpi
         x, Ax = A.createVecs()
         n = x.getLocalSize()
-        bs = D.shape[1] if D.ndim == 3 else 1
+        Dop, Dinvop = _block_diagonal(D), _block_diagonal(Dinv)
 
-        def apply(blocks, v):
-            return np.einsum("nij,nj->ni", blocks, v.reshape(-1, bs)).ravel()
-
-        def dot(u, v):
-            return mpi.allreduce(float(u @ v))
+        def apply_A(v):
+            x.array[:] = v
+            A.mult(x, Ax)
+            return Ax.array.copy()
 
         if start is None or start.shape != (n,):
             q, steps = np.random.default_rng(self.comm.getRank()).standard_normal(n), self.lanczos_steps
         else:
             q, steps = np.array(start), self.warm_lanczos_steps
-        nq = dot(q, apply(D, q))
-        rho, y = float("nan"), None
-        if nq > 0.0:
-            q = q / np.sqrt(nq)
-            q_prev = np.zeros(n)
-            alphas, betas, basis = [], [], []
-            beta = 0.0
-            for _ in range(max(steps, 1)):
-                basis.append(q)
-                x.array[:] = q
-                A.mult(x, Ax)
-                aq = Ax.array.copy()
-                alpha = dot(q, aq)
-                w = apply(Dinv, aq) - alpha * q - beta * q_prev
-                alphas.append(alpha)
-                beta2 = dot(w, apply(D, w))
-                if not np.isfinite(alpha) or not np.isfinite(beta2) or beta2 < 0.0:
-                    alphas = []
-                    break
-                beta = np.sqrt(beta2)
-                if beta <= 1e-12 * abs(alpha):
-                    break
-                betas.append(beta)
-                q_prev, q = q, w / beta
-            if alphas:
-                m = len(alphas)
-                theta, S = eigh_tridiagonal(np.array(alphas), np.array(betas[:m - 1]))
-                rho, y = float(theta[-1]), np.column_stack(basis) @ S[:, -1]
-        x.destroy()
-        Ax.destroy()
-        return rho, y
+        try:
+            return lanczos_recurrence(apply_A, lambda v: Dop @ v, lambda v: Dinvop @ v, q, steps,
+                                      dot=lambda u, v: mpi.allreduce(float(u @ v)), return_vector=True)
+        finally:
+            x.destroy()
+            Ax.destroy()
 
     # -- the preconditioner ----------------------------------------------------------------------------------------
     def configure(self, pc) -> None:

@@ -33,7 +33,7 @@ from scipy.linalg import eigh_tridiagonal, eigvalsh_tridiagonal
 from ._kernels import block_diagonal_inverse, bsr_matmat, bsr_operator, smoothed_prolongator
 from ._kernels import bsr_block_diagonal  # noqa: F401  (re-exported: the setup's block-diagonal helper)
 
-__all__ = ["bsr_block_diagonal", "lanczos_rho", "smoothed_aggregation_levels"]
+__all__ = ["bsr_block_diagonal", "lanczos_recurrence", "lanczos_rho", "smoothed_aggregation_levels"]
 
 
 def _block_diagonal_operator(D: np.ndarray) -> sp.bsr_matrix:
@@ -43,38 +43,37 @@ def _block_diagonal_operator(D: np.ndarray) -> sp.bsr_matrix:
     return sp.bsr_matrix((D, np.arange(nb), np.arange(nb + 1)), shape=(nb * bs, nb * bs))
 
 
-def lanczos_rho(A: sp.bsr_matrix, D: np.ndarray, Dinv: np.ndarray, steps: int = 12, seed: int = 0,
-                start: np.ndarray | None = None, return_vector: bool = False, kernels: str = "numpy"):
-    """Largest eigenvalue of ``D^-1 A`` by ``steps`` Lanczos steps in the ``D`` inner product.
+def lanczos_recurrence(apply_A, apply_D, apply_Dinv, q: np.ndarray, steps: int, dot=None,
+                       return_vector: bool = False):
+    """Largest Ritz value of ``D^-1 A`` by ``steps`` Lanczos steps in the ``D`` inner product, from ``q``.
 
-    ``A`` symmetric positive definite, ``D`` its block diagonal (SPD), ``Dinv`` the block
-    inverses. Returns the largest Ritz value (a lower bound, converging from below), or
-    ``nan`` when the run breaks down (``A`` or ``D`` not positive definite). The run starts
-    from ``start`` when given (e.g. the top Ritz vector of a nearby matrix), else from a
-    random vector (``seed``). With ``return_vector``: ``(rho, y)``, ``y`` the top Ritz vector
-    (None on breakdown). ``kernels="numba"`` applies the three matrices with the compiled block
-    product (:class:`~springsim.linsolve._kernels.BsrOperator`).
+    The recurrence behind :func:`lanczos_rho`, on any vectors: ``apply_A``, ``apply_D`` and ``apply_Dinv`` map a
+    vector to its product with ``A``, ``D`` and ``D^-1``, and ``dot(u, v)`` is the inner product (default
+    ``float(u @ v)``; the distributed set-up passes an all-reduced one, :mod:`springsim.distributed.sa`).
+
+    Returns
+    -------
+    float or tuple
+        The largest Ritz value, or ``nan`` on breakdown (``A`` or ``D`` not positive definite); with
+        ``return_vector``: ``(rho, y)``, ``y`` the top Ritz vector (None on breakdown).
     """
-    n = A.shape[0]
-    Dop, Dinvop = (bsr_operator(_block_diagonal_operator(M), kernels) for M in (D, Dinv))
-    A = bsr_operator(A, kernels)
-    q = np.random.default_rng(seed).standard_normal(n) if start is None else np.array(start, dtype=A.dtype)
-    nq = float(q @ (Dop @ q))
+    dot = dot or (lambda u, v: float(u @ v))
     nan = (float("nan"), None) if return_vector else float("nan")
+    nq = dot(q, apply_D(q))
     if not nq > 0.0:
         return nan
-    q /= np.sqrt(nq)
-    q_prev = np.zeros(n)
+    q = q / np.sqrt(nq)
+    q_prev = np.zeros(q.size)
     alphas, betas, basis = [], [], []
     beta = 0.0
     for _ in range(max(int(steps), 1)):
         if return_vector:
             basis.append(q)
-        Aq = A @ q
-        alpha = float(q @ Aq)
-        w = Dinvop @ Aq - alpha * q - beta * q_prev
+        Aq = apply_A(q)
+        alpha = dot(q, Aq)
+        w = apply_Dinv(Aq) - alpha * q - beta * q_prev
         alphas.append(alpha)
-        beta2 = float(w @ (Dop @ w))
+        beta2 = dot(w, apply_D(w))
         if not np.isfinite(alpha) or not np.isfinite(beta2) or beta2 < 0.0:
             return nan
         beta = np.sqrt(beta2)
@@ -87,6 +86,27 @@ def lanczos_rho(A: sp.bsr_matrix, D: np.ndarray, Dinv: np.ndarray, steps: int = 
         return float(eigvalsh_tridiagonal(np.array(alphas), np.array(betas[:k - 1]))[-1])
     theta, S = eigh_tridiagonal(np.array(alphas), np.array(betas[:k - 1]))
     return float(theta[-1]), np.column_stack(basis) @ S[:, -1]
+
+
+def lanczos_rho(A: sp.bsr_matrix, D: np.ndarray, Dinv: np.ndarray, steps: int = 12, seed: int = 0,
+                start: np.ndarray | None = None, return_vector: bool = False, kernels: str = "numpy"):
+    """Largest eigenvalue of ``D^-1 A`` by ``steps`` Lanczos steps in the ``D`` inner product.
+
+    ``A`` symmetric positive definite, ``D`` its block diagonal (SPD), ``Dinv`` the block
+    inverses. Returns the largest Ritz value (a lower bound, converging from below), or
+    ``nan`` when the run breaks down (``A`` or ``D`` not positive definite). The run starts
+    from ``start`` when given (e.g. the top Ritz vector of a nearby matrix), else from a
+    random vector (``seed``). With ``return_vector``: ``(rho, y)``, ``y`` the top Ritz vector
+    (None on breakdown). ``kernels="numba"`` applies the three matrices with the compiled block
+    product (:class:`~springsim.linsolve._kernels.BsrOperator`). The recurrence:
+    :func:`lanczos_recurrence`.
+    """
+    n = A.shape[0]
+    Dop, Dinvop = (bsr_operator(_block_diagonal_operator(M), kernels) for M in (D, Dinv))
+    A = bsr_operator(A, kernels)
+    q = np.random.default_rng(seed).standard_normal(n) if start is None else np.array(start, dtype=A.dtype)
+    return lanczos_recurrence(lambda v: A @ v, lambda v: Dop @ v, lambda v: Dinvop @ v, q, steps,
+                              return_vector=return_vector)
 
 
 def smoothed_aggregation_levels(A: sp.bsr_matrix, B: np.ndarray, *, theta: float = 0.1, omega: float = 4.0 / 3.0,
