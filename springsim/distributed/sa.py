@@ -82,6 +82,21 @@ def _tentative(agg: sp.csr_matrix, B: np.ndarray):
     return T, Bc, np.flatnonzero(norms < 0.5)  # fit_candidates gives orthonormal columns or zero ones
 
 
+def _inverse_diagonal_blocks(M, bs: int) -> np.ndarray:
+    """The inverses of ``M``'s owned ``bs x bs`` diagonal node blocks, shape ``(owned nodes, bs, bs)``.
+
+    PETSc's ``MatInvertBlockDiagonal`` when ``M`` carries the block size; otherwise (a product algorithm chosen by
+    the user's options, such as ``-matmatmult_via backend``, may return a coarse operator with block size 1) the
+    blocks are read from the rank's diagonal block and inverted here, so the hierarchy does not depend on it."""
+    if M.getBlockSize() == bs:
+        return np.asarray(M.invertBlockDiagonal()).reshape(-1, bs, bs)
+    D = _local_csr(M).tocoo()
+    keep = D.row // bs == D.col // bs
+    blocks = np.zeros((D.shape[0] // bs, bs, bs))
+    blocks[D.row[keep] // bs, D.row[keep] % bs, D.col[keep] % bs] = D.data[keep]
+    return np.linalg.inv(blocks)
+
+
 def _block_diagonal(blocks: np.ndarray) -> sp.csr_matrix:
     """The (nb, bs, bs) blocks as a block-diagonal CSR matrix."""
     return _block_diagonal_operator(blocks).tocsr()
@@ -219,7 +234,7 @@ class SmoothedAggregation:
             k = Bk.shape[1]
             Tl, Bc, dead = _tentative(agg, Bk)
             lv.T = self._fill(lv.T, Tl, (bs, k), mpi.exscan(Tl.shape[1]) or 0)
-            Dinv = np.asarray(Ak.invertBlockDiagonal()).reshape(-1, bs, bs)
+            Dinv = _inverse_diagonal_blocks(Ak, bs)
             lv.Dinv = self._fill(lv.Dinv, _block_diagonal(Dinv), (bs, bs), Ak.getOwnershipRange()[0])
             rho, lv.ritz = self._lanczos(Ak, np.linalg.inv(Dinv), Dinv, lv.ritz)
             if not (np.isfinite(rho) and rho > 0.0):

@@ -290,6 +290,18 @@ def sa_levels(out):
     report["indefinite"] = dict(ok=res.converged, method=res.method, failure=res.failure,
                                 residual=float(np.sqrt(s.sum(r @ r) / s.sum(rhs @ rhs))))
     s.destroy()
+    # a product algorithm from the user's options that leaves the coarse operators without block size 3 or 6
+    # (PETSc's "backend" MatMatMult of parallel matrices; one rank's sequential products have no such algorithm):
+    # the diagonal blocks are read from the matrix, the hierarchy is the same
+    ranks = s.size
+    s = DistributedSystem(model, rtol=1e-8, petsc_options="-matmatmult_via backend" if ranks > 1 else None)
+    q, v = s.local_state(q0, v0)
+    A = s.assemble(q, v, h * h, h, "spd")
+    res = s.solve(A, rhs)
+    report["backend_products"] = dict(ok=res.converged, its=res.iterations, method=res.method,
+                                      block_sizes=[lv.A.getBlockSize() for lv in s._sa.levels],
+                                      levels=[lv.A.getSize()[0] for lv in s._sa.levels])
+    s.destroy()
 
     # a straight rope: every aggregate collinear, the rotation about the rope is not representable
     b = ModelBuilder(gravity=-9.81)

@@ -421,7 +421,8 @@ def test_smoothed_aggregation_levels(ranks, tmp_path):
     """springsim's smoothed aggregation in PCMG (springsim.distributed.sa): the serial set-up's levels on one rank
     (same sizes, the same coarse operator to round-off), rank-local aggregates on several; CG solves a perturbed
     cloth and a straight rope (zero prolongator columns, given unit diagonals) to the tolerance; the Galerkin
-    recomputation with kept prolongators is exact; an indefinite matrix is never a silent wrong answer."""
+    recomputation with kept prolongators is exact; an indefinite matrix is never a silent wrong answer; a product
+    algorithm that drops the coarse operators' block size (``-matmatmult_via backend``) builds the same hierarchy."""
     import json
 
     out = tmp_path / "sa.json"
@@ -436,6 +437,10 @@ def test_smoothed_aggregation_levels(ranks, tmp_path):
         assert r["coarse_diff"] < 1e-12
     assert r["galerkin_diff"] < 1e-12
     assert r["rope"]["dead"] > 0  # collinear aggregates: the rotation about the rope has no column
+    bp = r["backend_products"]  # coarse operators without their block size: the same hierarchy and iterations
+    assert bp["ok"] and bp["levels"] == r["cloth_levels"] and bp["its"] == r["cloth"]["its"]
+    if ranks > 1:
+        assert bp["block_sizes"][1:] == [1] * (len(bp["block_sizes"]) - 1)
     ind = r["indefinite"]
     assert (ind["ok"] and ind["residual"] <= 1.01e-8) or (not ind["ok"] and ind["failure"])
 
