@@ -87,7 +87,11 @@ GAMG_DEFAULTS = {"mg_levels_ksp_chebyshev_esteig": "0,0.1,0,1.3"}
 #:   a kept preconditioner serves a matrix assembled with the same coefficients ``(a, b)`` whole (the new matrix
 #:   on its finest level only) until that once goes stale in the run, and otherwise with its coarse operators
 #:   recomputed (the prolongators kept; ``pc_stats["coarse_updates"]``).
-SPRINGSIM_OPTIONS = {"springsim_fine_smoother": "sor", "springsim_pc_reuse": "2", "springsim_pc": "sa"}
+#: * ``-springsim_insertion``: ``direct`` (the owned rows' values gathered straight into the AIJ matrix's arrays,
+#:   :class:`~springsim.distributed._aij.DirectInsertion`, checked once against PETSc's own insertion and replaced
+#:   by it where they differ) or ``petsc`` (``MatSetValuesBlockedLocal`` for every block).
+SPRINGSIM_OPTIONS = {"springsim_fine_smoother": "sor", "springsim_pc_reuse": "2", "springsim_pc": "sa",
+                     "springsim_insertion": "direct"}
 
 #: The values of ``-springsim_pc``.
 SPRINGSIM_PCS = ("sa", "gamg")
@@ -432,6 +436,10 @@ class DistributedSystem(System):
         if self.springsim_pc not in SPRINGSIM_PCS:
             raise SceneError("petsc_options", f"-springsim_pc must be {' or '.join(SPRINGSIM_PCS)}, got "
                                               f"{self.springsim_pc!r:.40}")
+        self.insertion = opts.getString("springsim_insertion", SPRINGSIM_OPTIONS["springsim_insertion"])
+        if self.insertion not in ("direct", "petsc"):
+            raise SceneError("petsc_options", f"-springsim_insertion must be direct or petsc, got "
+                                              f"{self.insertion!r:.40}")
         #: the preconditioner is springsim's smoothed aggregation (no -pc_type option and no other pc_type given)
         self.use_sa = self.springsim_pc == "sa" and pc_type is None and not opts.hasName("pc_type")
         self._sa = SmoothedAggregation(PETSc, self.comm) if self.use_sa else None
@@ -495,6 +503,7 @@ class DistributedSystem(System):
 
         # the matrix, preallocated exactly from the global pattern of the owned rows
         indptr, cols = self._owned_row_pattern()
+        self._pattern = (indptr, cols)  # block level, for the direct insertion
         sptr, scols = _scalar_csr(indptr, cols)
         A = PETSc.Mat().create(comm=self.comm)
         A.setSizes(((own3, F3), (own3, F3)), bsize=3)
@@ -504,6 +513,7 @@ class DistributedSystem(System):
         A.setLGMap(self.lgmap, self.lgmap)
         self.A = A
         self._local_csr = None
+        self._direct = None  # the direct insertion, after the first assembly ("-springsim_insertion")
         self.symmetric = True
         self.timings = dict(exchange_s=0.0, force_s=0.0, assembly_s=0.0, insert_s=0.0, setup_s=0.0, solve_s=0.0)
         # what the root needs to gather frames: every rank's owned ids in system order, and the fixed particles
@@ -808,12 +818,19 @@ class DistributedSystem(System):
         t1 = time.perf_counter()
         bsr = m.bsr
         A = self.A
-        A.zeroEntries()
-        if self._local_csr is None:  # the local pattern never changes
-            self._local_csr = (bsr.indptr.astype(self.PETSc.IntType), bsr.indices.astype(self.PETSc.IntType))
-            self._offproc_blocks = int(bsr.indptr[-1] - bsr.indptr[self.part.n_own])
-        A.setValuesBlockedLocalCSR(*self._local_csr, bsr.data.reshape(-1), addv=self.PETSc.InsertMode.ADD_VALUES)
-        A.assemble()
+        if self._direct is not None:
+            self._direct.insert(A, bsr.data)
+        else:
+            A.zeroEntries()
+            first = self._local_csr is None
+            if first:  # the local pattern never changes
+                self._local_csr = (bsr.indptr.astype(self.PETSc.IntType), bsr.indices.astype(self.PETSc.IntType))
+                self._offproc_blocks = int(bsr.indptr[-1] - bsr.indptr[self.part.n_own])
+            A.setValuesBlockedLocalCSR(*self._local_csr, bsr.data.reshape(-1),
+                                       addv=self.PETSc.InsertMode.ADD_VALUES)
+            A.assemble()
+            if first and self.insertion == "direct":
+                self._direct = self._direct_insertion(bsr)
         self.symmetric = self.all(bool(m.symmetric))
         self._positions = q_own
         self._coefficients = (float(a), float(b))
@@ -822,6 +839,28 @@ class DistributedSystem(System):
         self.timings["assembly_s"] += t1 - t0
         self.timings["insert_s"] += time.perf_counter() - t1
         return _Operator(self)
+
+    def _direct_insertion(self, bsr):
+        """A :class:`~springsim.distributed._aij.DirectInsertion` for :attr:`A` when it reproduces the insertion just
+        done by PETSc exactly on every rank (:attr:`A` then holds its result, the same values), else None (PETSc's
+        insertion stays). Collective."""
+        from ._aij import DirectInsertion
+
+        p = self.part
+        try:
+            direct = DirectInsertion(self.PETSc, self.A, self._pattern, bsr.indptr, bsr.indices,
+                                     p.local_to_free[:p.n_local_free], p.n_own, _petsc_library())
+        except (ValueError, OSError, AttributeError, self.PETSc.Error):
+            direct = None
+        self._pattern = None
+        if not self.all(direct is not None):
+            return None
+        if direct.matches(self.A, bsr.data, self.mpi):
+            return direct
+        self.A.zeroEntries()  # PETSc's insertion again
+        self.A.setValuesBlockedLocalCSR(*self._local_csr, bsr.data.reshape(-1), addv=self.PETSc.InsertMode.ADD_VALUES)
+        self.A.assemble()
+        return None
 
     def communication(self) -> dict:
         """This rank's share of the communication so far, counted from the ghost scatter's and the matrix's sizes.

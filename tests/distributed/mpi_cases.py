@@ -84,6 +84,8 @@ def matrix(scene, out, partitioner="contiguous"):
     curv = ds.curvature_forces(q[own], q2[own], np.empty((ds.part.n_own, 3)))
     curv_full = None if curv is None else ds.gather_full(curv, curv)[0]
     mats = {}
+    # the first assembly inserts by PETSc's MatSetValuesBlockedLocal, the second directly into the AIJ arrays
+    # ("-springsim_insertion direct", the default)
     for mode in ("exact", "spd"):
         ds.assemble(q[own], v[own], 2.5e-4, 1.6e-2, mode)
         A = ds.gather_matrix()
@@ -91,10 +93,11 @@ def matrix(scene, out, partitioner="contiguous"):
             A.sort_indices()
             mats[mode] = A
     ghosts = ds.mpi.gather(ds.part.n_ghost)  # collective: every rank
+    direct = ds.all(ds._direct is not None)
     if ds.rank == 0:
         extra = {} if curv_full is None else {"curvature": curv_full[model.free_particles]}
         np.savez(out, f=f_full[model.free_particles], size=ds.size, **extra, system_particles=ds.system_particles,
-                 ghosts=np.array(ghosts),
+                 ghosts=np.array(ghosts), direct=direct,
                  **{f"{m}_{k}": getattr(A, k) for m, A in mats.items() for k in ("data", "indices", "indptr")})
     return 0
 
@@ -153,13 +156,15 @@ def pc_reuse(scene, out):
     opts = PETSc.Options()
 
     def clear():
-        for name in ("springsim_pc_reuse", "springsim_fine_smoother", "mg_levels_pc_type", "springsim_pc"):
+        for name in ("springsim_pc_reuse", "springsim_fine_smoother", "mg_levels_pc_type", "springsim_pc",
+                     "springsim_insertion"):
             if opts.hasName(name):
                 opts.delValue(name)
 
     model = make(scene)
     report = {}
-    for bad in ("-springsim_pc_reuse 0", "-springsim_pc_reuse x", "-springsim_fine_smoother ilu", "-springsim_pc ml"):
+    for bad in ("-springsim_pc_reuse 0", "-springsim_pc_reuse x", "-springsim_fine_smoother ilu", "-springsim_pc ml",
+                "-springsim_insertion csr"):
         try:
             DistributedSystem(model, petsc_options=bad)
             report[bad] = "accepted"

@@ -135,7 +135,8 @@ MATRIX_CASES = ([(name, ranks, "contiguous") for name in ("cloth", "irregular") 
 @pytest.mark.parametrize("name, ranks, partitioner", MATRIX_CASES)
 def test_gathered_matrix_equals_serial(name, ranks, partitioner, tmp_path):
     """Contiguous blocks: the gathered matrix is the serial one; a graph partition numbers the system part by
-    part, and the gathered matrix is the serial one with rows and columns permuted alike."""
+    part, and the gathered matrix is the serial one with rows and columns permuted alike. The first matrix is
+    inserted by PETSc, the second directly into the AIJ arrays (springsim.distributed._aij)."""
     from springsim.assembly import SystemAssembler
 
     from .mpi_cases import _state
@@ -148,6 +149,7 @@ def test_gathered_matrix_equals_serial(name, ranks, partitioner, tmp_path):
     terms = make_force_terms(model)
     f = eval_forces(terms, q, v)[model.free_particles]
     assert int(d["size"]) == ranks
+    assert bool(d["direct"])  # the direct insertion reproduced PETSc's on the first matrix and was kept
     assert np.abs(d["f"] - f).max() <= 1e-12 * np.abs(f).max()
     # the second-order correction's forces (length remainders from q to another state) match the serial terms'
     q2, _ = _state(model, seed=11)
@@ -390,6 +392,7 @@ def test_preconditioner_options_and_reuse(ranks, tmp_path):
     assert "-springsim_pc_reuse must be an integer >= 1, got 'x'" in r["-springsim_pc_reuse x"]
     assert "-springsim_fine_smoother must be sor or gamg, got 'ilu'" in r["-springsim_fine_smoother ilu"]
     assert "-springsim_pc must be sa or gamg, got 'ml'" in r["-springsim_pc ml"]
+    assert "-springsim_insertion must be direct or petsc, got 'csr'" in r["-springsim_insertion csr"]
     assert r["fine_default"] == "richardson+sor"
     assert r["fine_gamg"] == r["fine_user"] == "chebyshev+jacobi"
     first, same, stiff = r["solves_gamg"]
