@@ -11,9 +11,10 @@ The places come from the block pattern the matrix was preallocated with (every e
 split between the two blocks the way ``MATMPIAIJ`` stores them: the columns the rank owns in the diagonal block,
 the others in the off-diagonal one in increasing global column (its compressed columns follow the sorted ghost
 columns); each scalar row holds its blocks' three columns in that order. Only block-level arrays and one gather
-index per owned entry are built. The caller checks the first insertion against PETSc's own (:meth:`DirectInsertion.matches`) and keeps
-PETSc's path where they differ. Before writing, ``MatZeroEntries`` zeroes the arrays and, as for any change of
-values, invalidates the blocks' cached inverse diagonals that SOR keeps.
+index per owned entry are built. The caller checks the first insertion against PETSc's own
+(:meth:`DirectInsertion.matches`) and keeps PETSc's path where they differ. Before writing, ``MatZeroEntries``
+zeroes the arrays and, as for any change of values, invalidates the blocks' cached inverse diagonals that SOR
+keeps.
 """
 
 from __future__ import annotations

@@ -503,7 +503,7 @@ class DistributedSystem(System):
 
         # the matrix, preallocated exactly from the global pattern of the owned rows
         indptr, cols = self._owned_row_pattern()
-        self._pattern = (indptr, cols)  # block level, for the direct insertion
+        self._pattern = (indptr, cols) if self.insertion == "direct" else None  # block level, for the direct insertion
         sptr, scols = _scalar_csr(indptr, cols)
         A = PETSc.Mat().create(comm=self.comm)
         A.setSizes(((own3, F3), (own3, F3)), bsize=3)
@@ -842,8 +842,8 @@ class DistributedSystem(System):
 
     def _direct_insertion(self, bsr):
         """A :class:`~springsim.distributed._aij.DirectInsertion` for :attr:`A` when it reproduces the insertion just
-        done by PETSc exactly on every rank (:attr:`A` then holds its result, the same values), else None (PETSc's
-        insertion stays). Collective."""
+        done by PETSc on every rank (:meth:`~springsim.distributed._aij.DirectInsertion.matches`; :attr:`A` then holds
+        its result), else None, with PETSc's insertion redone (it stays). Collective."""
         from ._aij import DirectInsertion
 
         p = self.part
