@@ -61,7 +61,7 @@ class DirectInsertion:
     def __init__(self, PETSc, A, pattern, indptr, indices, local_to_global, n_own: int, lib, bs: int = 3):
         if np.dtype(PETSc.ScalarType) != np.float64 or A.getType() not in ("seqaij", "mpiaij"):
             raise ValueError(f"direct insertion needs a real AIJ matrix, got {A.getType()} of {PETSc.ScalarType}")
-        self.PETSc, self.lib, self.bs, self.n_own = PETSc, lib, int(bs), int(n_own)
+        self.PETSc, self.lib = PETSc, lib
         pptr, pcols = (np.asarray(a, dtype=np.int64) for a in pattern)
         indptr, indices = np.asarray(indptr, dtype=np.int64), np.asarray(indices, dtype=np.int64)
         l2g = np.asarray(local_to_global, dtype=np.int64)

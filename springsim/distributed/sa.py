@@ -19,8 +19,8 @@ of ``rho(D^-1 A)``). :class:`SmoothedAggregation` builds that hierarchy on the d
   Coarse nodes keep six DOFs, so every level has uniform point blocks.
 * **Prolongator smoothing** ``P = T - (omega / rho) D^-1 A T``: ``A T`` by PETSc's parallel ``MatMatMult`` (it
   fetches the rows of ``T`` other ranks own), ``D^-1`` the inverted point blocks (``MatInvertBlockDiagonal``) as a
-  block-diagonal matrix, ``rho`` from a Lanczos run on ``D^-1 A`` in the ``D`` inner product (12 steps, or 4 from the level's
-  previous top Ritz vector, as serially: :func:`springsim.linsolve._sa.lanczos_rho`).
+  block-diagonal matrix, ``rho`` from a Lanczos run on ``D^-1 A`` in the ``D`` inner product (12 steps, or 4 from
+  the level's previous top Ritz vector, as serially: :func:`springsim.linsolve._sa.lanczos_rho`).
 * **Coarse operators** ``P^T (A P)`` by an explicit transpose and two parallel products (about 0.6x the time of
   ``MatPtAP``). Every product keeps its result matrix, so its symbolic phase is done once per run; that costs
   memory (about 1.3-1.7x GAMG's peak). The coarsest level (at most ``max_coarse``

@@ -83,10 +83,11 @@ GAMG_DEFAULTS = {"mg_levels_ksp_chebyshev_esteig": "0,0.1,0,1.3"}
 #: * ``-springsim_pc``: ``sa`` (springsim's smoothed aggregation in PETSc's PCMG,
 #:   :class:`~springsim.distributed.sa.SmoothedAggregation`: the serial AMG's hierarchy with aggregates local to
 #:   each rank) or ``gamg`` (PETSc's GAMG). ``sa`` needs a symmetric positive definite matrix: a non-symmetric
-#:   one, or one on which its set-up breaks down, gets GAMG, and so does the GMRES retry of a missed solve. A ``-pc_type`` option overrides both. With ``sa``
-#:   a kept preconditioner serves a matrix assembled with the same coefficients ``(a, b)`` whole (the new matrix
-#:   on its finest level only) until that once goes stale in the run, and otherwise with its coarse operators
-#:   recomputed (the prolongators kept; ``pc_stats["coarse_updates"]``).
+#:   one, or one on which its set-up breaks down, gets GAMG, and so does the GMRES retry of a missed solve. A
+#:   ``-pc_type`` option overrides both. With ``sa`` a kept preconditioner serves a matrix assembled with the
+#:   same coefficients ``(a, b)`` whole (the new matrix on its finest level only) until that once goes stale in
+#:   the run, and otherwise with its coarse operators recomputed (the prolongators kept;
+#:   ``pc_stats["coarse_updates"]``).
 #: * ``-springsim_insertion``: ``direct`` (the owned rows' values gathered straight into the AIJ matrix's arrays,
 #:   :class:`~springsim.distributed._aij.DirectInsertion`, checked once against PETSc's own insertion and replaced
 #:   by it where they differ) or ``petsc`` (``MatSetValuesBlockedLocal`` for every block).
@@ -821,14 +822,11 @@ class DistributedSystem(System):
         if self._direct is not None:
             self._direct.insert(A, bsr.data)
         else:
-            A.zeroEntries()
             first = self._local_csr is None
             if first:  # the local pattern never changes
                 self._local_csr = (bsr.indptr.astype(self.PETSc.IntType), bsr.indices.astype(self.PETSc.IntType))
                 self._offproc_blocks = int(bsr.indptr[-1] - bsr.indptr[self.part.n_own])
-            A.setValuesBlockedLocalCSR(*self._local_csr, bsr.data.reshape(-1),
-                                       addv=self.PETSc.InsertMode.ADD_VALUES)
-            A.assemble()
+            self._petsc_insert(bsr.data)
             if first and self.insertion == "direct":
                 self._direct = self._direct_insertion(bsr)
         self.symmetric = self.all(bool(m.symmetric))
@@ -857,10 +855,15 @@ class DistributedSystem(System):
             return None
         if direct.matches(self.A, bsr.data, self.mpi):
             return direct
-        self.A.zeroEntries()  # PETSc's insertion again
-        self.A.setValuesBlockedLocalCSR(*self._local_csr, bsr.data.reshape(-1), addv=self.PETSc.InsertMode.ADD_VALUES)
-        self.A.assemble()
+        self._petsc_insert(bsr.data)  # PETSc's insertion again
         return None
+
+    def _petsc_insert(self, data) -> None:
+        """:attr:`A` = the local BSR matrix of values ``data`` by PETSc's ``MatSetValuesBlockedLocal`` (adding; the
+        ghost rows go to their owners in the assembly). Collective."""
+        self.A.zeroEntries()
+        self.A.setValuesBlockedLocalCSR(*self._local_csr, data.reshape(-1), addv=self.PETSc.InsertMode.ADD_VALUES)
+        self.A.assemble()
 
     def communication(self) -> dict:
         """This rank's share of the communication so far, counted from the ghost scatter's and the matrix's sizes.
