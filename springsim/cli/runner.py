@@ -417,8 +417,8 @@ def load_trajectory_for(path, scene, scene_path):
     A different particle count is an error, found from the array headers before any data is read
     (a 7 MB compressed file announcing 3e8 particles costs nothing); so is a file without frames.
     A different model fingerprint (the file records the model it was computed from) is a one-line
-    warning on stderr; a file without one (a distributed run of a generated scene: no process had the whole model
-    to hash) is compared by the SHA-256 of the scene file it was run from instead.
+    warning on stderr; a file without one (a distributed run of a generated scene before such runs hashed the model
+    in bands) is compared by the SHA-256 of the scene file it was run from instead.
 
     Parameters
     ----------

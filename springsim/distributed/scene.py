@@ -69,10 +69,13 @@ class ScenePart:
     damped : bool
         Whether the whole model dissipates (:meth:`springsim.Model.dissipates`).
     model_fingerprint : str or None
-        The whole model's :meth:`~springsim.Model.fingerprint` where some rank held it (a scattered model), None
-        for a generated one (no rank has the whole model to hash).
+        The whole model's :meth:`~springsim.Model.fingerprint`: computed where some rank held the model (a
+        scattered one); for a generated one, None until :meth:`fingerprint` computes it from :attr:`grid`.
     pair_counts : dict
         Pair term -> number of pairs in the whole model (also as ``<term>_count`` attributes, as a Model has).
+    grid : dict or None
+        A generated part's description (:func:`cloth_grid_part`'s ``grid``, ``gravity`` and ``up_axis``), from
+        which :meth:`fingerprint` hashes the whole model in bands (:func:`cloth_grid_fingerprint`).
     """
 
     part: LocalPart
@@ -88,6 +91,7 @@ class ScenePart:
     damped: bool
     model_fingerprint: str | None = None
     pair_counts: dict | None = None
+    grid: dict | None = None
 
     def __getattr__(self, name: str):
         counts = self.__dict__.get("pair_counts") or {}
@@ -108,13 +112,20 @@ class ScenePart:
         return 3 * self.free_count
 
     def fingerprint(self) -> str | None:
-        """The whole model's fingerprint, or None where no rank held the whole model.
+        """The whole model's fingerprint, the same as the serial model's (:meth:`springsim.Model.fingerprint`).
+
+        A generated part computes it on the first call, from its grid's description, in bands
+        (:func:`cloth_grid_fingerprint`: about 1.4 s per million particles), with no communication; the run's
+        metadata asks for it on the rank that writes the output.
 
         Returns
         -------
         str or None
-            :attr:`model_fingerprint`.
+            :attr:`model_fingerprint`; None for a part of :func:`model_part` alone (:func:`scatter_model` sets it).
         """
+        if self.model_fingerprint is None and self.grid is not None:
+            self.model_fingerprint = cloth_grid_fingerprint(self.grid["grid"], gravity=self.grid["gravity"],
+                                                            up_axis=self.grid["up_axis"])
         return self.model_fingerprint
 
     def dissipates(self) -> bool:
@@ -258,7 +269,7 @@ def cloth_grid_part(grid: dict, size: int, rank: int, *, gravity: float = -9.81,
     Returns
     -------
     ScenePart
-        Without a fingerprint (None).
+        Its fingerprint computed on demand (:meth:`ScenePart.fingerprint`).
 
     Raises
     ------
@@ -307,15 +318,143 @@ def cloth_grid_part(grid: dict, size: int, rank: int, *, gravity: float = -9.81,
     fb.add_particles(_grid_positions(c, fixed_ids), None, c["mass"], drag=c["drag"], fixed=True)
     with _global_ids(fixed_ids):
         fixed_model = fb.finalize()
-    springs = ny * (nx - 1) + (ny - 1) * nx + 2 * (ny - 1) * (nx - 1)  # the whole grid's
-    if c["bending"]:
-        springs += ny * max(nx - 2, 0) + max(ny - 2, 0) * nx
+    springs = _grid_spring_count(nx, ny, c["bending"])
     counts = {t: 0 for t in pair_families(piece)}
     counts["spring"] = springs
     return ScenePart(part=part, particle_count=n, free_count=F, fixed_ids=fixed_ids, fixed_model=fixed_model,
                      gravity=piece.gravity, up_axis=piece.up_axis, pair_epsilon=piece.pair_epsilon,
                      metadata=dict(metadata or {}), cloth_grids=(ClothGrid(0, nx, ny),), damped=bool(damped),
-                     pair_counts=counts)
+                     pair_counts=counts, grid={"grid": dict(grid), "gravity": gravity, "up_axis": up_axis})
+
+
+def _grid_spring_count(nx: int, ny: int, bending: bool) -> int:
+    """Springs of a whole ``nx`` x ``ny`` grid (:func:`~springsim.model.topology.cloth_grid_pairs`)."""
+    springs = ny * (nx - 1) + (ny - 1) * nx + 2 * (ny - 1) * (nx - 1)
+    if bending:
+        springs += ny * max(nx - 2, 0) + max(ny - 2, 0) * nx
+    return springs
+
+
+#: Particles per piece of :func:`cloth_grid_fingerprint` (whole grid rows: at least one row).
+FINGERPRINT_PIECE = 1 << 16
+
+
+def cloth_grid_fingerprint(grid: dict, *, gravity: float = -9.81, up_axis="z") -> str:
+    """The :meth:`~springsim.Model.fingerprint` of the model of one cloth grid, computed in bands of grid rows.
+
+    Equal to ``ModelBuilder(gravity=gravity, up_axis=up_axis).add_cloth_grid(**grid).finalize().fingerprint()``
+    (tested), without building that model: the hash is one byte stream (:func:`springsim.model.model.
+    streamed_fingerprint`), fed array by array with pieces of about :data:`FINGERPRINT_PIECE` particles (or their
+    springs) generated with :func:`cloth_grid_part`'s arithmetic. Memory: the pin mask (one byte per particle)
+    and one piece. Time: one pass over the model's arrays (measured in docs/distributed.md, "Scene construction").
+
+    Parameters
+    ----------
+    grid : dict
+        Keyword arguments of :meth:`springsim.ModelBuilder.add_cloth_grid`.
+    gravity : float
+        Acceleration along the up axis [m/s^2].
+    up_axis : str or int
+        ``"x"``, ``"y"``, ``"z"`` or 0, 1, 2.
+
+    Returns
+    -------
+    str
+        64 hexadecimal digits.
+
+    Raises
+    ------
+    SceneError
+        An invalid grid argument, as :func:`cloth_grid_part` raises it.
+    """
+    from ..forces import FORCE_TERMS
+    from ..model.model import fingerprint_v1_names, streamed_fingerprint
+
+    kw = dict(grid)
+    pin = kw.pop("pin", "edge")
+    c = resolve_cloth_grid(**kw)
+    nx, ny = c["nx"], c["ny"]
+    n = nx * ny
+    fixed = cloth_pin_mask(nx, ny, pin, positions=_grid_positions(c, np.arange(n, dtype=np.int64))
+                           if _has_box(pin) else None, path="cloth.pin")
+    band = max(FINGERPRINT_PIECE // nx, 1)
+    bands = [(r, min(r + band, ny)) for r in range(0, ny, band)]
+
+    # the template: the builder's model of the first rows, one spring per family, for the dtypes, the defaults
+    # and the scalars
+    rows = min(ny, 3)
+    ids = np.arange(rows * nx, dtype=np.int64)
+    topo = cloth_grid_pairs(nx, rows, bending=c["bending"])
+    tb = ModelBuilder(gravity=gravity, up_axis=up_axis)
+    tb.add_particles(_grid_positions(c, ids), None, c["mass"], drag=c["drag"], fixed=fixed[:ids.size])
+    for family, (ke, kd) in c["springs"].items():
+        tb.add_springs(topo[family][:1], ke, kd)
+    with _global_ids(ids):
+        t = tb.finalize()
+
+    # the springs: family by family in the builder's order; within a family, its blocks of one offset j - i in
+    # cloth_grid_pairs' order, each in row-major order of its first particle
+    blocks = []
+    for family, coef in c["springs"].items():
+        d = topo[family][:, 1] - topo[family][:, 0]
+        blocks += [(family, coef, int(off)) for off in d[np.sort(np.unique(d, return_index=True)[1])]]
+
+    counts = {}  # (block, band) -> springs: the coefficients need only the counts
+
+    def block_pairs(b, r0, r1):
+        family, _, off = blocks[b]
+        w1 = min(r1 + 2, ny)  # pairs reach two rows down
+        ij = cloth_grid_pairs(nx, w1 - r0, bending=c["bending"])[family]
+        ij = ij[(ij[:, 1] - ij[:, 0] == off) & (ij[:, 0] < (r1 - r0) * nx)]
+        counts[b, r0] = len(ij)
+        return ij, w1
+
+    def spring_pieces(what):
+        spring = FORCE_TERMS["spring"]
+        for b, (_, (ke, kd), _) in enumerate(blocks):
+            for r0, r1 in bands:
+                if what in ("stiffness", "damping"):
+                    k = counts[b, r0] if (b, r0) in counts else len(block_pairs(b, r0, r1)[0])
+                    yield np.full(k, ke if what == "stiffness" else kd)
+                    continue
+                ij, w1 = block_pairs(b, r0, r1)
+                if what == "indices":
+                    yield ij + r0 * nx
+                else:  # rest_length (the callers' names)
+                    q = _grid_positions(c, np.arange(r0 * nx, w1 * nx, dtype=np.int64))
+                    yield spring.complete_data({"indices": ij, "rest_length": np.full(len(ij), np.nan)},
+                                               particle_q=q, particle_mass=None,
+                                               pair_epsilon=t.pair_epsilon)["rest_length"]
+
+    def particle_pieces(name, proto):
+        for r0, r1 in bands:
+            k = (r1 - r0) * nx
+            if name == "particle_q":
+                yield _grid_positions(c, np.arange(r0 * nx, r1 * nx, dtype=np.int64))
+            elif name == "particle_fixed":
+                yield fixed[r0 * nx:r1 * nx]
+            elif name == "particle_qd":
+                yield np.zeros((k, 3))
+            else:  # mass, radius, drag: one value for the whole grid, the template's
+                yield np.full((k,) + proto.shape[1:], proto[0], dtype=proto.dtype)
+
+    springs = _grid_spring_count(nx, ny, c["bending"])
+    v1 = []
+    for name in fingerprint_v1_names():
+        proto = getattr(t, name)
+        if name.startswith("particle_"):
+            v1.append((name, (n,) + proto.shape[1:], proto.dtype, particle_pieces(name, proto)))
+        elif name in ("spring_indices", "spring_stiffness", "spring_damping", "spring_rest_length"):
+            what = name[len("spring_"):]
+            v1.append((name, (springs,) + proto.shape[1:], proto.dtype, spring_pieces(what)))
+        elif proto.shape[0] == 0:  # a term the grid does not use
+            v1.append((name, proto.shape, proto.dtype, [proto]))
+        else:
+            raise NotImplementedError(f"cloth_grid_fingerprint: {name} is not generated")
+    if t.data_beyond_v1():
+        raise NotImplementedError("cloth_grid_fingerprint: term data beyond FINGERPRINT_V1")
+    return streamed_fingerprint(v1, gravity=t.gravity, up_axis=t.up_axis, pair_epsilon=t.pair_epsilon,
+                                cloth_grids=(ClothGrid(0, nx, ny),))
 
 
 @contextmanager
@@ -510,4 +649,4 @@ def repartition(scene: ScenePart, parts: np.ndarray, comm=None) -> ScenePart:
                      fixed_ids=scene.fixed_ids, fixed_model=scene.fixed_model, gravity=scene.gravity,
                      up_axis=scene.up_axis, pair_epsilon=scene.pair_epsilon, metadata=scene.metadata,
                      cloth_grids=scene.cloth_grids, damped=scene.damped, model_fingerprint=scene.model_fingerprint,
-                     pair_counts=scene.pair_counts)
+                     pair_counts=scene.pair_counts, grid=scene.grid)

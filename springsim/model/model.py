@@ -69,6 +69,77 @@ FINGERPRINT_V1 = ("particle_q", "particle_qd", "particle_mass", "particle_radius
                   "gravitational_indices", "gravitational_G", "gravitational_softening")
 
 
+def fingerprint_v1_names() -> list[str]:
+    """The names of :data:`FINGERPRINT_V1` that a model has with the registered terms, in the order
+    :meth:`Model.fingerprint` hashes them.
+
+    Returns
+    -------
+    list of str
+    """
+    from ..forces._data import term_attributes
+
+    table = term_attributes(reserved=_model_names())
+    return [name for name in FINGERPRINT_V1 if name in table or name in Model.__dataclass_fields__]
+
+
+def streamed_fingerprint(v1, *, gravity, up_axis, pair_epsilon, cloth_grids, beyond=()) -> str:
+    """:meth:`Model.fingerprint` of arrays given in pieces: the same SHA-256 as the whole arrays give.
+
+    A model's fingerprint is the hash of one byte stream: each array's name, dtype and shape, then its bytes
+    (little-endian); then the scalars; then the arrays beyond :data:`FINGERPRINT_V1`. So an array may come as
+    a sequence of pieces along its first axis, generated one at a time, and the memory is one piece's rather than
+    the model's (:func:`springsim.distributed.scene.cloth_grid_fingerprint`).
+
+    Parameters
+    ----------
+    v1 : iterable of (str, tuple, dtype, iterable of ndarray)
+        The arrays of :func:`fingerprint_v1_names`, in that order: name, whole shape, dtype, and the pieces, which
+        concatenated along the first axis make the array.
+    gravity, up_axis, pair_epsilon, cloth_grids
+        The model's scalars (:class:`Model`).
+    beyond : iterable of (str, tuple, dtype, iterable of ndarray)
+        :meth:`Model.data_beyond_v1`, likewise.
+
+    Returns
+    -------
+    str
+        64 hexadecimal digits.
+
+    Raises
+    ------
+    ValueError
+        Pieces of another dtype or trailing shape than declared, or not adding up to the declared length.
+    """
+    h = hashlib.sha256()
+
+    def array(name, shape, dtype, pieces):
+        dtype = np.dtype(dtype).newbyteorder("<")
+        shape = tuple(int(x) for x in shape)
+        h.update(name.encode())
+        h.update(f"{dtype.str}{shape}".encode())
+        rows = 0
+        for p in pieces:
+            p = np.asarray(p)
+            if p.dtype.newbyteorder("<") != dtype or p.shape[1:] != shape[1:]:
+                raise ValueError(f"{name}: a piece of dtype {p.dtype} and shape {p.shape}, declared {dtype} {shape}")
+            h.update(np.ascontiguousarray(p, dtype=dtype).tobytes())
+            rows += p.shape[0]
+        if rows != shape[0]:
+            raise ValueError(f"{name}: the pieces have {rows} rows, declared {shape[0]}")
+
+    for item in v1:
+        array(*item)
+    for name, v in (("gravity", gravity), ("up_axis", up_axis), ("pair_epsilon", pair_epsilon),
+                    ("cloth_grids", cloth_grids)):
+        v = tuple(tuple(int(x) for x in g) for g in v) if name == "cloth_grids" else float(v)
+        h.update(name.encode())
+        h.update(repr(v).encode())
+    for item in beyond:
+        array(*item)
+    return h.hexdigest()
+
+
 @functools.lru_cache(maxsize=1)
 def _model_names() -> frozenset:
     """The names the :class:`Model` itself has (fields, properties, methods): not term data."""
@@ -357,28 +428,13 @@ class Model:
         str
             64 hexadecimal digits.
         """
-        from ..forces._data import term_attributes
+        def whole(name, v):
+            return name, v.shape, v.dtype, [v]
 
-        h = hashlib.sha256()
-
-        def array(name, v):
-            h.update(name.encode())
-            a = np.ascontiguousarray(v, dtype=v.dtype.newbyteorder("<"))
-            h.update(f"{a.dtype.str}{a.shape}".encode())
-            h.update(a.tobytes())
-
-        table = term_attributes(reserved=_model_names())
-        for name in FINGERPRINT_V1:
-            if name in table or name in self.__dataclass_fields__:
-                array(name, getattr(self, name))
-        for name in ("gravity", "up_axis", "pair_epsilon", "cloth_grids"):
-            v = getattr(self, name)
-            v = tuple(tuple(int(x) for x in g) for g in v) if name == "cloth_grids" else float(v)
-            h.update(name.encode())
-            h.update(repr(v).encode())
-        for name, v in self.data_beyond_v1():
-            array(name, v)
-        return h.hexdigest()
+        return streamed_fingerprint([whole(name, getattr(self, name)) for name in fingerprint_v1_names()],
+                                    gravity=self.gravity, up_axis=self.up_axis, pair_epsilon=self.pair_epsilon,
+                                    cloth_grids=self.cloth_grids,
+                                    beyond=[whole(name, v) for name, v in self.data_beyond_v1()])
 
     def data_beyond_v1(self) -> list[tuple[str, np.ndarray]]:
         """The term data that :data:`FINGERPRINT_V1` does not cover, of the terms that have data (a pair, or a value

@@ -338,7 +338,8 @@ def test_cli_generator_scene_is_generated_per_rank(tmp_path):
     d, s = Trajectory.load(out), Trajectory.load(tmp_path / "s.npz")
     assert d.q.shape == s.q.shape == (5, 144, 3)
     assert np.abs(d.q - s.q).max() < 1e-7
-    assert d.meta["model_fingerprint"] is None  # no rank had the whole model to hash
+    # no rank had the whole model; its fingerprint, hashed in bands of rows, is the serial model's
+    assert d.meta["model_fingerprint"] == s.meta["model_fingerprint"] is not None
     bad = tmp_path / "bad.yaml"
     for block, message in (("benchmark_cloth: {n: 12, ke: -3}", "benchmark_cloth.ke: must be >= 0, got -3"),
                            # only rank 1's rows overflow: the ranks agree, the particle named as serially
@@ -666,7 +667,7 @@ def test_scene_built_per_rank_matches_the_replicated_run(kind, integrator, ranks
     """A generated cloth (each rank its rows) or a scene scattered from rank 0, run with the frames streamed to a
     file: the frames are the replicated model's to round-off (the parts are the same to the last bit,
     test_cloth_built_per_rank_is_the_models_part; PETSc's assembly adds the ghost rows in the order their messages
-    arrive, and a graph partition sums in another order), and the fingerprint is the model's where rank 0 had it."""
+    arrive, and a graph partition sums in another order), and the fingerprint is the whole model's."""
     from springsim.run.driver import Trajectory
 
     out = tmp_path / "t.npz"
@@ -675,7 +676,7 @@ def test_scene_built_per_rank_matches_the_replicated_run(kind, integrator, ranks
     assert t.q.shape == ref["q"].shape and t.frame_count == 5
     assert np.abs(t.q - ref["q"]).max() <= 1e-10 and np.abs(t.qd - ref["qd"]).max() <= 1e-7
     assert int(ref["ranks"]) == ranks
-    assert t.meta["model_fingerprint"] == (None if kind == "cloth" else str(ref["fingerprint"]))
+    assert t.meta["model_fingerprint"] == str(ref["fingerprint"])  # a generated part's hashed in bands of rows
     assert sorted(p.name for p in tmp_path.iterdir()) == ["t.npz", "t.npz.ref.npz"]  # no temporary file left
 
 

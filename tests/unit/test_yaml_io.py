@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from springsim import SceneError
+from springsim import ModelBuilder, SceneError
 from springsim.model.topology import cloth_grid_pairs
 from springsim.scene import PlotSpec, SolverConfig, load_scene, parse_scene
 
@@ -394,6 +394,7 @@ def test_generator_scene_is_described_and_built_only_on_request():
         np.testing.assert_array_equal(g.part.local_particles, m.part.local_particles)
         for a, b in ((g.part.pair_model, m.part.pair_model), (g.part.particle_model, m.part.particle_model)):
             assert a.fingerprint() == b.fingerprint()
+        assert g.fingerprint() == built.model.fingerprint()  # hashed in bands, no rank holding the model
     for other in ("particles: [{pos: [5, 0, 0], mass: 1}]\n", "pin: [0]\n",
                   "cloth: {nx: 3, ny: 3}\n"):
         s = load_scene(text + other, build=False)
@@ -401,3 +402,35 @@ def test_generator_scene_is_described_and_built_only_on_request():
     bad = load_scene(text.replace("2.0e+3", "-3"), build=False)  # checked where the parts are generated
     with pytest.raises(SceneError, match=r"^benchmark_cloth\.ke: must be >= 0, got -3"):
         generated_part(bad.generator, 2, 1)
+
+
+@pytest.mark.parametrize("piece", [1 << 16, 7, 1])
+@pytest.mark.parametrize("grid, gravity, up", [
+    (dict(nx=5, ny=4), -9.81, "z"),
+    (dict(nx=2, ny=2), -9.81, "z"),
+    (dict(nx=2, ny=7, bending=False), -3.0, "y"),
+    (dict(nx=7, ny=2, pin="none"), -9.81, 0),
+    (dict(nx=9, ny=11, plane="xz", drag=0.3, ke=1e5, kd=2.0, ke_shear=10, ke_bend=3.0, pin="corners"), -1.0, "y"),
+    (dict(nx=6, ny=6, size=(1.0, 2.0), total_mass=3.0, origin=(1.0, 2.0, 3.0),
+          pin={"box": [[0, 0, 0], [1.5, 2.5, 4]]}), -9.81, "z"),
+])
+def test_cloth_grid_fingerprint_streamed_in_bands_is_the_models(grid, gravity, up, piece, monkeypatch):
+    """A generated cloth's fingerprint, hashed in bands of rows without building the model (down to one row per
+    piece), is the built model's to the bit: every array, pin and coefficient variant, family order, plane."""
+    from springsim.distributed import scene as ds
+
+    monkeypatch.setattr(ds, "FINGERPRINT_PIECE", piece)
+    b = ModelBuilder(gravity=gravity, up_axis=up)
+    b.add_cloth_grid(**grid)
+    assert ds.cloth_grid_fingerprint(grid, gravity=gravity, up_axis=up) == b.finalize().fingerprint()
+
+
+def test_streamed_fingerprint_checks_its_pieces():
+    """Pieces that do not make the declared array are refused, not hashed as another array."""
+    from springsim.model.model import streamed_fingerprint
+
+    kw = dict(gravity=0.0, up_axis=2, pair_epsilon=1e-9, cloth_grids=())
+    with pytest.raises(ValueError, match="the pieces have 2 rows, declared 3"):
+        streamed_fingerprint([("a", (3,), np.float64, [np.zeros(2)])], **kw)
+    with pytest.raises(ValueError, match="a piece of dtype int64"):
+        streamed_fingerprint([("a", (2,), np.float64, [np.zeros(2, dtype=np.int64)])], **kw)
