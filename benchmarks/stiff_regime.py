@@ -35,7 +35,7 @@ For each ``(n, ke)`` and target (1 cm and 5 cm) the report gives, **per method**
 configuration within the target (CPU per frame; symplectic Euler has one, at its limit), or, if none
 is, its most accurate run (``reached`` False); the ratio of that CPU per frame to symplectic Euler's at its
 verified limit; Newton iterations per stage solve (retakes included) and per step; the steps whose Newton
-did not converge, the steps still failed after their retakes in 2, 4, 8 substeps (``failed_steps``, which
+did not converge, the steps still failed after their retakes in 2, 4, ... 32 substeps (``failed_steps``, which
 must be 0) and the steps that needed a retake; the reference's floor and the load average before and after
 the size. Writes ``results/stiff_regime.csv``, ``results/stiff_regime.md`` and ``results/stiff_regime.png``
 (CPU per frame at 1 cm against ke, log-log, one panel per n, one line per method; the explicit trend

@@ -11,7 +11,10 @@ adds what every method shares:
   ``2**retake_halvings`` equal substeps (each halving makes ``c^2 K`` four times smaller), the first attempt
   that succeeds in every substep is kept, and the abandoned ones are listed in ``StepStats.extra["retaken"]``
   and the count in ``["substeps"]``. Only if the finest attempt fails too is the step reported (and then the
-  run's exit status says so). Adaptive runs retake nothing here: the step-size controller retries a failed
+  run's exit status says so). The ladder is five halvings deep (32 substeps) by default: with three, TR-BDF2 on
+  the benchmark cloth at n = 64, ke = 1e8, h = 1/60 s failed 3 of 30 steps in 8 substeps (the Newton limit at
+  1.85e-2 N against a tolerance of 3.3e-3 N); with five every step converges, two of them in 16 and 32 substeps,
+  for the same total CPU. Adaptive runs retake nothing here: the step-size controller retries a failed
   step smaller itself.
 * **Substep memory.** The phases that need substeps (a stiff cloth buckling) last for many steps, and each
   abandoned attempt costs a whole stage run to its stall or iteration limit. So the next step starts at the number
@@ -84,7 +87,8 @@ class ImplicitIntegrator(Integrator):
         ``"raise"``: :class:`~springsim.errors.SolverError` at once; ``"ignore"``: recorded in
         :class:`StepStats` only.
     retake_halvings : int
-        A step that fails is retaken in up to ``2**retake_halvings`` substeps (module docstring; 0: never).
+        A step that fails is retaken in up to ``2**retake_halvings`` substeps (module docstring; default 5: up to
+        32; 0: never).
     filter_estimates : bool or None
         Pass the local error estimate through Shampine's stiff filter (:meth:`filter_estimate`; one extra
         linear solve per step); default the class's ``default_filter_estimates``. Only integrators whose
@@ -143,7 +147,7 @@ class ImplicitIntegrator(Integrator):
 
     def __init__(self, model, *, system=None, newton: NewtonOptions | None = None,
                  linear: LinearSolveOptions | None = None, solver_options: dict | None = None,
-                 on_nonconvergence: str = "warn", retake_halvings: int = 3, filter_estimates: bool | None = None,
+                 on_nonconvergence: str = "warn", retake_halvings: int = 5, filter_estimates: bool | None = None,
                  terms=None, force_kernels: str = "auto", **options):
         solver = options.get("solver")
         instance = solver is not None and not isinstance(solver, str)  # a LinearSolver instance: no name to check

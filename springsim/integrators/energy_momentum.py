@@ -32,9 +32,9 @@ exact ``K`` is not symmetric; the ``symmetric`` and ``spd`` modes (for AMG-CG) a
 the force terms document, with which Newton converges only linearly.
 
 Retake. A step whose stage does not converge, whose matrix lost the masses (ill-conditioned) or whose
-linear solve gave a non-finite solution is retaken in 2, 4 and 8 equal substeps (each halving makes
+linear solve gave a non-finite solution is retaken in 2, 4, ... 32 equal substeps (each halving makes
 ``c^2 K`` 4x smaller); the first attempt that succeeds in every substep is kept, the abandoned ones are
-listed in ``StepStats.extra["retaken"]`` and the count in ``["substeps"]``. If even 8 substeps fail, the
+listed in ``StepStats.extra["retaken"]`` and the count in ``["substeps"]``. If even 32 substeps fail, the
 step is reported as not ``ok`` (or the :class:`~springsim.errors.SolverError` is raised). Retaking it as
 implicit Euler, as TR-BDF2 does, would not help: its stage coefficient ``c = h`` is twice this one's, so
 its Newton fails first (on the 8 x 8 benchmark cloth at ``h = 0.1 s`` it did, and the unconverged result

@@ -83,12 +83,14 @@ def test_stiff_cloth_keeps_its_energy_at_large_steps():
 
 def test_retake_bookkeeping(monkeypatch):
     """The retake loop, driven by a stage that fails a given number of times: the first attempt that succeeds in
-    every substep is kept and recorded; after 8 failed substeps the step is reported, not hidden."""
+    every substep is kept and recorded; after 32 failed substeps (the default ladder) the step is reported, not
+    hidden."""
     from springsim.integrators.energy_momentum import IntegratorEnergyMomentum
 
     model = benchmark_cloth(4)
     # each failed attempt stops at its first failed substep: k forced failures end at 2**k substeps
-    for failures, substeps, ok in ((0, 1, True), (1, 2, True), (2, 4, True), (3, 8, True), (1000, 8, False)):
+    for failures, substeps, ok in ((0, 1, True), (1, 2, True), (2, 4, True), (3, 8, True), (5, 32, True),
+                                   (1000, 32, False)):
         integ = make_integrator("energy_momentum", model, on_nonconvergence="ignore")
         real = IntegratorEnergyMomentum._substep
         calls = []
@@ -107,7 +109,7 @@ def test_retake_bookkeeping(monkeypatch):
         st = integ.step(s0, s1, 0.01)
         assert st.ok == ok
         assert st.extra.get("substeps", 1) == substeps
-        assert len(st.extra.get("retaken", [])) == {1: 0, 2: 1, 4: 2, 8: 3}[substeps]
+        assert len(st.extra.get("retaken", [])) == {1: 0, 2: 1, 4: 2, 8: 3, 32: 5}[substeps]
         if ok:  # the kept attempt covers the step in equal substeps
             assert calls[-substeps:] == [0.01 / substeps] * substeps
         else:
