@@ -447,14 +447,11 @@ def cloth_grid_fingerprint(grid: dict, *, gravity: float = -9.81, up_axis="z") -
         elif name in ("spring_indices", "spring_stiffness", "spring_damping", "spring_rest_length"):
             what = name[len("spring_"):]
             v1.append((name, (springs,) + proto.shape[1:], proto.dtype, spring_pieces(what)))
-        elif proto.shape[0] == 0:  # a term the grid does not use
+        else:  # another term's pairs or per-model data: a grid adds none, so the template's array is the model's
             v1.append((name, proto.shape, proto.dtype, [proto]))
-        else:
-            raise NotImplementedError(f"cloth_grid_fingerprint: {name} is not generated")
-    if t.data_beyond_v1():
-        raise NotImplementedError("cloth_grid_fingerprint: term data beyond FINGERPRINT_V1")
+    beyond = [(name, a.shape, a.dtype, [a]) for name, a in t.data_beyond_v1()]  # none for a grid (tested equal)
     return streamed_fingerprint(v1, gravity=t.gravity, up_axis=t.up_axis, pair_epsilon=t.pair_epsilon,
-                                cloth_grids=(ClothGrid(0, nx, ny),))
+                                cloth_grids=(ClothGrid(0, nx, ny),), beyond=beyond)
 
 
 @contextmanager
