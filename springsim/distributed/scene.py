@@ -115,8 +115,8 @@ class ScenePart:
         """The whole model's fingerprint, the same as the serial model's (:meth:`springsim.Model.fingerprint`).
 
         A generated part computes it on the first call, from its grid's description, in bands
-        (:func:`cloth_grid_fingerprint`: about 1.4 s per million particles), with no communication; the run's
-        metadata asks for it on the rank that writes the output.
+        (:func:`cloth_grid_fingerprint`: about 1.4 s per million particles), with no communication; every rank's run
+        metadata asks for it, in parallel.
 
         Returns
         -------
