@@ -242,6 +242,16 @@ def _grid_positions(c: dict, ids: np.ndarray) -> np.ndarray:
     return pos
 
 
+def _resolved_grid(grid: dict):
+    """A grid's resolved description (:func:`~springsim.model.builder.resolve_cloth_grid`) and its whole pin mask
+    (one byte per particle; the positions are computed only for a ``box`` pin)."""
+    kw = dict(grid)
+    pin = kw.pop("pin", "edge")
+    c = resolve_cloth_grid(**kw)
+    positions = _grid_positions(c, np.arange(c["nx"] * c["ny"], dtype=np.int64)) if _has_box(pin) else None
+    return c, cloth_pin_mask(c["nx"], c["ny"], pin, positions=positions, path="cloth.pin")
+
+
 def cloth_grid_part(grid: dict, size: int, rank: int, *, gravity: float = -9.81, up_axis="z",
                     metadata: dict | None = None) -> ScenePart:
     """Rank ``rank``'s :class:`ScenePart` of the model of one cloth grid, built from the grid's description alone.
@@ -276,15 +286,9 @@ def cloth_grid_part(grid: dict, size: int, rank: int, *, gravity: float = -9.81,
     SceneError
         An invalid grid argument, with the builder's message (``cloth.<argument>``).
     """
-    kw = dict(grid)
-    pin = kw.pop("pin", "edge")
-    c = resolve_cloth_grid(**kw)
+    c, fixed = _resolved_grid(grid)
     nx, ny = c["nx"], c["ny"]
     n = nx * ny
-    ids_all = np.arange(n, dtype=np.int64)
-    fixed = cloth_pin_mask(nx, ny, pin, positions=_grid_positions(c, ids_all) if _has_box(pin) else None,
-                           path="cloth.pin")
-    del ids_all
     free = np.flatnonzero(~fixed)
     F = int(free.size)
     offsets = contiguous_offsets(F, size)
@@ -370,13 +374,9 @@ def cloth_grid_fingerprint(grid: dict, *, gravity: float = -9.81, up_axis="z") -
     from ..forces import FORCE_TERMS
     from ..model.model import fingerprint_v1_names, streamed_fingerprint
 
-    kw = dict(grid)
-    pin = kw.pop("pin", "edge")
-    c = resolve_cloth_grid(**kw)
+    c, fixed = _resolved_grid(grid)
     nx, ny = c["nx"], c["ny"]
     n = nx * ny
-    fixed = cloth_pin_mask(nx, ny, pin, positions=_grid_positions(c, np.arange(n, dtype=np.int64))
-                           if _has_box(pin) else None, path="cloth.pin")
     band = max(FINGERPRINT_PIECE // nx, 1)
     bands = [(r, min(r + band, ny)) for r in range(0, ny, band)]
 
