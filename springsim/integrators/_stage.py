@@ -123,14 +123,26 @@ confirmed by one more solve to ``rtol`` (:class:`StageForcing`).
 
 Linear solves. In a ``minimize`` stage a solve need not be more accurate than the stopping rule needs: a Newton
 step whose linear residual is ``eta |R|`` leaves a gradient of about ``eta |grad E|`` plus the quadratic
-remainder, so the solve from an iterate with ``|grad E| = g`` stops at the relative residual ``max(rtol, min(0.5
+remainder, so the solve from an iterate with ``|grad E| = g`` stops at the relative residual ``max(rtol, min(s
 tol / g, 0.1))`` (``tol`` the stage's stopping tolerance, ``rtol`` the system's): the solver's own tolerance
 while the gradient is far above ``tol``, looser in the last iterations (the gradient at the new iterate,
-evaluated exactly, still decides). A solve that missed its criterion is still a usable search direction (inexact
-Newton) in a stage whose own stopping rule then certifies the result (counted in
-``StepStats.extra["recovered_linear_failures"]``); in a stage that does not converge, and in linearized implicit
-Euler, it fails the step (``StepStats.linear_failures``). A non-finite solution ends the step with
-:class:`~springsim.errors.SolverError`.
+evaluated exactly, still decides). The share is ``s = 0.5`` up to a stiffness ratio ``S = 1.6e7`` of the stage
+matrix and ``s = 0.5 sqrt(1.6e7 / S)`` above it (:func:`solve_share`), with ``S = max_i max|D_i| / m_i`` over its
+3x3 diagonal blocks (:meth:`~springsim.system.System.precision_loss` over the unit round-off; about ``4 c^2 k /
+m`` on a cloth). The remainder is what the loose solve leaves in the soft directions: a velocity error ``e``
+there, which the residual weighs by the mass alone, moves a particle by ``c e`` across a spring of stiffness
+``k`` and length ``l`` and stretches it to second order, a gradient of ``k (c e)^2 / (2 l)``; kept below the
+tolerance, that bounds the residual share by a multiple of ``sqrt(m^2 / (c^4 k))``, ``S^-1/2`` at fixed mass and
+step. The constants were measured on the benchmark cloth at h = 1/60 s with AMG-CG, 30 frames: with ``s = 0.5``
+at ke = 1e8 and n = 64 the stages alternated between loose steps that turned stiff springs and steps that took the
+stretch back (implicit Euler, ``S`` = 4.6e8: 65 Newton iterations per step against about 20 with ``s = 0.05``, and
+2.1x the CPU; TR-BDF2, ``S`` = 3.9e7: 51 Newton iterations per stage against 24 with ``s = 0.32``); at ke = 1e4 and
+1e6 (``S`` up to 4.6e6) ``s = 0.5`` cost the least CPU, and TR-BDF2 at n = 128, ke = 1e7 (``S`` = 1.6e7) took
+about the same Newton iterations with 0.5 and 0.28 and less CPU with 0.5 (the notes of 2026-12-06 on loose
+solves). A solve that missed its criterion is still a usable search direction (inexact Newton) in a stage whose
+own stopping rule then certifies the result (counted in ``StepStats.extra["recovered_linear_failures"]``); in a
+stage that does not converge, and in linearized implicit Euler, it fails the step (``StepStats.linear_failures``).
+A non-finite solution ends the step with :class:`~springsim.errors.SolverError`.
 """
 
 from __future__ import annotations
@@ -146,7 +158,7 @@ from ._base import PRECISION_LOSS_LIMIT, StepStats
 from ._options import ByRule, DefaultRule, OptionGroup, option
 
 __all__ = ["STAGE_SOLVERS", "FORCING_RULES", "NewtonOptions", "StageOptions", "StageSolver", "StageForcing",
-           "forcing_term", "backtrack", "record_linear_solve", "report_stage", "check_count"]
+           "forcing_term", "backtrack", "record_linear_solve", "report_stage", "check_count", "solve_share"]
 
 #: Rules of the stage solver (module docstring).
 STAGE_SOLVERS = ("minimize", "residual", "pa2")
@@ -158,11 +170,31 @@ _ARMIJO = 1e-4
 #: "Stalls").
 _STALL_WINDOW = 10
 #: A minimisation stage's linear solve need not leave a residual below this share of the stopping tolerance
-#: (module docstring, "Linear solves"), nor be looser than ``_SOLVE_LOOSEST``.
-_SOLVE_SHARE, _SOLVE_LOOSEST = 0.5, 0.1
+#: (module docstring, "Linear solves"), nor be looser than ``_SOLVE_LOOSEST``; the share falls as
+#: ``sqrt(_SOLVE_STIFF / S)`` above the stiffness ratio ``S = _SOLVE_STIFF`` of the stage matrix.
+_SOLVE_SHARE, _SOLVE_LOOSEST, _SOLVE_STIFF = 0.5, 0.1, 1.6e7
 #: The Armijo test of a minimisation stage compares with the largest ``E`` of this many last iterates (module
 #: docstring, "Nonmonotone line search").
 _NONMONOTONE = 5
+
+
+def solve_share(precision_loss: float) -> float:
+    """Share of a ``minimize`` stage's stopping tolerance its linear solves may leave as residual (module
+    docstring, "Linear solves").
+
+    Parameters
+    ----------
+    precision_loss : float
+        The stage matrix's :meth:`~springsim.system.System.precision_loss`, ``u max_i max|D_i| / m_i``
+        (``u`` the unit round-off): ``S = precision_loss / u`` is its stiffness ratio.
+
+    Returns
+    -------
+    float
+        ``0.5 min(1, sqrt(1.6e7 / S))``.
+    """
+    ratio = precision_loss / np.finfo(np.float64).eps
+    return _SOLVE_SHARE * min(1.0, float(np.sqrt(_SOLVE_STIFF / ratio))) if ratio > _SOLVE_STIFF else _SOLVE_SHARE
 
 
 def forcing_term(k: int, rnorm: float, rnorm_prev: float, eta_prev: float, *, eta_max: float, floor: float) -> float:
@@ -572,6 +604,7 @@ class StageSolver:
         #: Whether a stalled ``minimize`` stage stops early (module docstring, "Stalls"); the integrators turn it
         #: off in the last substep retake, which has nothing smaller to fall back on.
         self.stop_stalls = True
+        self._precision_loss = 0.0
 
     def reset(self) -> None:
         """Forget the warm start of the first linear solve."""
@@ -633,8 +666,16 @@ class StageSolver:
         else:
             A = sysm.assemble(q, v, c * c, c, mode, damping_geometry=geometry)
         stats.assembly_s += sysm.last_assembly_s
-        stats.precision_loss = max(stats.precision_loss, sysm.precision_loss(A))
+        self._precision_loss = sysm.precision_loss(A)
+        stats.precision_loss = max(stats.precision_loss, self._precision_loss)
         return A
+
+    def _solve_rtol(self, rtol: float | None, gnorm: float, tol: float) -> tuple[float | None, bool]:
+        """``(rtol, by_need)`` of the next solve of a ``minimize`` stage, once its matrix is assembled: the forcing
+        rule's tolerance ``rtol``, or the looser one the stopping rule needs (module docstring, "Linear solves")."""
+        need = min(solve_share(self._precision_loss) * tol / gnorm, _SOLVE_LOOSEST)
+        by_need = need > (self.system.linear_rtol if rtol is None else rtol)
+        return (need if by_need else rtol), by_need
 
     def _linear_solve(self, A, b, stats, first: bool, rtol: float | None = None):
         sysm = self.system
@@ -710,18 +751,14 @@ class StageSolver:
             self.trace.append((0, 0.0, gnorm, tol, E))
         while not converged and it < maxiter and np.isfinite(gnorm):
             R = sysm.gather(grad) * (-c)
-            rtol = forcing.rtol(gnorm)
-            # no solve more accurate than the stopping rule needs ("Linear solves")
-            need = min(_SOLVE_SHARE * tol / gnorm, _SOLVE_LOOSEST)
-            by_need = need > (sysm.linear_rtol if rtol is None else rtol)
-            if by_need:
-                rtol = need
+            forced = forcing.rtol(gnorm)
             slope = 0.0
             if exact:
                 # a stalled projected iteration (a slack, buckling cloth: the projection of the compressed springs
                 # is far stiffer than E): E's exact Hessian (symmetric mode, the damping frozen), positive definite
                 # near a minimum, where it gives a descent direction
                 A = self._assemble(q, v, c, "symmetric", stats, geometry=geometry)
+                rtol, by_need = self._solve_rtol(forced, gnorm, tol)
                 failed = list(self._failed)
                 try:
                     res = self._linear_solve(A, R, stats, first=False, rtol=rtol)
@@ -734,6 +771,7 @@ class StageSolver:
                 stats.extra["exact_hessian_steps"] = stats.extra.get("exact_hessian_steps", 0) + exact
             if not exact:
                 A = self._assemble(q, v, c, o.jacobian, stats, geometry=geometry)
+                rtol, by_need = self._solve_rtol(forced, gnorm, tol)
                 res = self._linear_solve(A, R, stats, first=(it == 0), rtol=rtol)
                 dv = res.x
                 slope = -sysm.dot(R, dv)  # d/dalpha E(v + alpha dv) at 0 = grad_x . (c dv) = -R . dv
