@@ -138,8 +138,8 @@ at ke = 1e8 and n = 64 the stages alternated between loose steps that turned sti
 stretch back (implicit Euler, ``S`` = 4.6e8: 65 Newton iterations per step against about 20 with ``s = 0.05``, and
 2.1x the CPU; TR-BDF2, ``S`` = 3.9e7: 51 Newton iterations per stage against 24 with ``s = 0.32``); at ke = 1e4 and
 1e6 (``S`` up to 4.6e6) ``s = 0.5`` cost the least CPU, and TR-BDF2 at n = 128, ke = 1e7 (``S`` = 1.6e7) took
-about the same Newton iterations with 0.5 and 0.28 and less CPU with 0.5 (the notes of 2026-12-06 on loose
-solves). A solve that missed its criterion is still a usable search direction (inexact Newton) in a stage whose
+about the same Newton iterations with 0.5 and 0.28 and less CPU with 0.5 (benchmark notes on loose solves on
+stiff cloth). A solve that missed its criterion is still a usable search direction (inexact Newton) in a stage whose
 own stopping rule then certifies the result (counted in ``StepStats.extra["recovered_linear_failures"]``); in a
 stage that does not converge, and in linearized implicit Euler, it fails the step (``StepStats.linear_failures``).
 A non-finite solution ends the step with :class:`~springsim.errors.SolverError`.
