@@ -194,7 +194,7 @@ def solve_share(precision_loss: float) -> float:
         ``0.5 min(1, sqrt(1.6e7 / S))``.
     """
     ratio = precision_loss / np.finfo(np.float64).eps
-    return _SOLVE_SHARE * min(1.0, float(np.sqrt(_SOLVE_STIFF / ratio))) if ratio > _SOLVE_STIFF else _SOLVE_SHARE
+    return _SOLVE_SHARE * float(np.sqrt(_SOLVE_STIFF / ratio)) if ratio > _SOLVE_STIFF else _SOLVE_SHARE
 
 
 def forcing_term(k: int, rnorm: float, rnorm_prev: float, eta_prev: float, *, eta_max: float, floor: float) -> float:
