@@ -147,6 +147,40 @@ def test_auto_choice_by_size_and_symmetry():
     assert res.method == "auto:amg-cg" and res.converged
 
 
+def test_auto_factors_after_slow_amg_cg_solves_and_backs_off():
+    """An AMG-CG solve above ``switch_iterations`` hands the next ``cooldown`` symmetric solves to direct; AMG-CG is
+    then tried again, the cooldown doubling while it stays slow (up to ``max_cooldown``) and returning to its start
+    when a try is fast; every answer meets its criterion."""
+    S, b, D = _cached("spd")
+    x_ref = np.linalg.solve(D, b)
+    auto = make_linear_solver("auto", direct_max_dofs=10, rtol=RTOL, switch_iterations=1, cooldown=2, max_cooldown=4)
+    choices = []
+    for _ in range(12):
+        res = auto.solve(S, b)
+        assert res.converged and np.linalg.norm(res.x - x_ref) <= 1e-6 * np.linalg.norm(x_ref)
+        choices.append(res.info["auto_choice"])
+    c, d = "amg-cg", "direct"
+    assert choices == [c, d, d, c, d, d, d, d, c, d, d, d]  # cooldowns 2, 4, 4 (the maximum)
+    assert auto.switches == 3 and "amg-cg needed" in auto.last_reason
+    auto.switch_iterations = 1000  # the next try is fast: back to AMG-CG, the cooldown to its start
+    for _ in range(2):
+        auto.solve(S, b)
+    assert auto.last_choice == c and auto._next_cooldown == 2
+    A, bn, _ = _cached("nonsymmetric")  # non-symmetric systems go to amg-gmres, whatever the switch
+    assert auto.choose(A) == "amg-gmres"
+    off = make_linear_solver("auto", direct_max_dofs=10, rtol=RTOL, switch_iterations=1, stiff_direct_max_dofs=0)
+    assert {off.solve(S, b).info["auto_choice"] for _ in range(3)} == {c} and off.switches == 0
+
+
+@pytest.mark.parametrize("options, field", [(dict(switch_iterations=0), "switch_iterations"),
+                                            (dict(cooldown=0), "cooldown"),
+                                            (dict(stiff_direct_max_dofs=-1), "stiff_direct_max_dofs")])
+def test_auto_switch_options_are_checked(options, field):
+    """Invalid switch options are a ValueError naming them."""
+    with pytest.raises(ValueError, match=field):
+        make_linear_solver("auto", **options)
+
+
 @pytest.mark.parametrize("kernels", ["numpy", "numba"])
 @pytest.mark.parametrize("sweep", ["forward", "backward"])
 @pytest.mark.parametrize("bs", [2, 3, 6])

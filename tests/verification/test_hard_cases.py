@@ -115,10 +115,10 @@ def test_linearized_default_jacobian_is_projected_and_pa2_is_the_seed(solver):
     """linearized_implicit defaults to the projected ``mixed`` Jacobian with every solver, on every backend (one
     unchecked linear step never follows a compressed spring's negative stiffness); ``stage_solver="pa2"``
     reproduces seed eq. 3: the exact Jacobian with every solver that takes any matrix (dense, direct, amg-gmres,
-    auto up to its direct size), spd only with the CG-type solvers, which need it."""
+    auto up to its direct size), spd only with the CG-type solvers (``needs_spd``), which need it."""
     small, large = stiff_cloth(), benchmark_cloth(40)
     assert make_integrator("linearized_implicit", small, solver=solver).jacobian == "mixed"
-    expect = {"cg": "spd", "amg-cg": "spd"}.get(solver, "exact")
+    expect = "spd" if solver != "auto" and LINEAR_SOLVERS[solver].needs_spd else "exact"
     res = dict(stage_solver="residual")
     assert make_integrator("linearized_implicit", small, solver=solver, **res).jacobian == expect
     assert make_integrator("linearized_implicit", large, solver=solver, **res).jacobian == (

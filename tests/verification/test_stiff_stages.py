@@ -334,6 +334,33 @@ def test_minimize_solves_on_very_stiff_cloth_leave_a_smaller_share(monkeypatch):
 
 
 @pytest.mark.parametrize("name", ["implicit_euler", "tr_bdf2"])
+def test_auto_factoring_after_slow_amg_solves_keeps_every_stage_converged(name, monkeypatch):
+    """``auto`` handing a stiff cloth's solves to ``direct`` after slow AMG-CG ones (10 x 10, ke = 1e9, AMG-CG
+    from 100 DOFs, a switch at 5 CG iterations): both solvers answer stages, every step meets the gradient
+    criterion, the stretch stays bounded and no energy is created."""
+    from springsim.linsolve import LinearSolverAuto
+
+    model = benchmark_cloth(10, stiffness=1e9)
+    integ = make_integrator(name, model, solver_options=dict(direct_max_dofs=100, switch_iterations=5, cooldown=2))
+    chosen = []
+    original = LinearSolverAuto._solve
+
+    def spy(self, A, b, x0, rtol):
+        res = original(self, A, b, x0, rtol)
+        chosen.append(res.info["auto_choice"])
+        return res
+
+    monkeypatch.setattr(LinearSolverAuto, "_solve", spy)
+    traj = simulate(model, integ, H, 6)
+    assert all(s.ok for s in traj.stats)
+    assert all(s.extra["gradient_norm"] <= s.extra["gradient_tol"] for s in traj.stats)
+    assert set(chosen) == {"amg-cg", "direct"} and integ.system.solver.switches > 0
+    assert _stretch(model, traj) <= 1.1
+    energy = total_energy(model, traj.q, traj.qd)
+    assert energy.max() <= energy[0] + 1e-6 * 9.81
+
+
+@pytest.mark.parametrize("name", ["implicit_euler", "tr_bdf2"])
 def test_curved_steps_are_taken_on_very_stiff_cloth(name):
     """At ke = 1e8 full Newton steps that turn springs raise E; the nonmonotone search accepts most of them as they
     are, and those above its window are corrected along the springs' arcs (the second-order correction: implicit
