@@ -1,4 +1,4 @@
-"""``auto``: picks a solver by system size and symmetry.
+"""``auto``: picks a solver by system size and symmetry, and on stiff systems by AMG-CG's iteration counts.
 
 * ``3F <= direct_max_dofs`` (default :data:`DIRECT_MAX_DOFS`, 4,000): ``direct`` (SuperLU). Below
   this size a factorisation beats an AMG setup plus its iterations, and it is exact for indefinite
@@ -39,8 +39,8 @@ __all__ = ["LinearSolverAuto", "DIRECT_MAX_DOFS", "STIFF_DIRECT_MAX_DOFS"]
 DIRECT_MAX_DOFS = 4000
 #: Largest system [DOFs] ``auto`` factors after a slow AMG-CG solve (module docstring). The 64 x 64 cloth (12,096
 #: DOFs) factors in about 100 AMG-CG iterations' time (0.19 s), the 128 x 128 one (48,768) in about 160 (1.2 s, 21
-#: million entries in the factors): there the switch at 100 iterations measured no gain (the notes on factoring stiff stages of
-#: BENCHMARKS.md#stiff-convergence).
+#: million entries in the factors): there the switch at 100 iterations measured no gain (the notes on factoring
+#: stiff stages of BENCHMARKS.md#stiff-convergence).
 STIFF_DIRECT_MAX_DOFS = 25_000
 
 
