@@ -167,11 +167,15 @@ class LinearSolverAuto(LinearSolver):
 
     def _judge_amg(self, iterations: int) -> None:
         """After an AMG-CG solve: hand the next ``cooldown`` solves to ``direct`` when it was slow (doubling the
-        cooldown while AMG-CG stays slow), or return the cooldown to its start when it was not."""
+        cooldown while AMG-CG stays slow; the AMG hierarchy is dropped), or return the cooldown to its start when it
+        was not."""
         if iterations > self.switch_iterations:
             self.switches += 1
             self._slow_its = int(iterations)
             self.direct_left = self._next_cooldown
             self._next_cooldown = min(2 * self._next_cooldown, self.max_cooldown)
+            # the hierarchy would be many matrices old at the next try: free it now (the factors need the memory),
+            # so that the try builds one for its own matrix and is judged on it
+            self._solvers["amg-cg"].preconditioner.invalidate()
         else:
             self._next_cooldown = self.cooldown

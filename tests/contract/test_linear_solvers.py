@@ -149,8 +149,9 @@ def test_auto_choice_by_size_and_symmetry():
 
 def test_auto_factors_after_slow_amg_cg_solves_and_backs_off():
     """An AMG-CG solve above ``switch_iterations`` hands the next ``cooldown`` symmetric solves to direct; AMG-CG is
-    then tried again, the cooldown doubling while it stays slow (up to ``max_cooldown``) and returning to its start
-    when a try is fast; every answer meets its criterion."""
+    then tried again (on a hierarchy of its own matrix: the old one is dropped at the switch), the cooldown doubling
+    while it stays slow (up to ``max_cooldown``) and returning to its start when a try is fast; every answer meets its
+    criterion."""
     S, b, D = _cached("spd")
     x_ref = np.linalg.solve(D, b)
     auto = make_linear_solver("auto", direct_max_dofs=10, rtol=RTOL, switch_iterations=1, cooldown=2, max_cooldown=4)
@@ -162,6 +163,7 @@ def test_auto_factors_after_slow_amg_cg_solves_and_backs_off():
     c, d = "amg-cg", "direct"
     assert choices == [c, d, d, c, d, d, d, d, c, d, d, d]  # cooldowns 2, 4, 4 (the maximum)
     assert auto.switches == 3 and "amg-cg needed" in auto.last_reason
+    assert auto._solvers["amg-cg"].preconditioner.ml is None  # the hierarchy is dropped while direct answers
     auto.switch_iterations = 1000  # the next try is fast: back to AMG-CG, the cooldown to its start
     for _ in range(2):
         auto.solve(S, b)
