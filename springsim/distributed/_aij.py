@@ -23,10 +23,119 @@ import ctypes
 
 import numpy as np
 
-__all__ = ["DirectInsertion"]
+__all__ = ["AIJValues", "DirectInsertion", "petsc_library"]
 
 #: Blocks per chunk while the gather indices are built (the temporaries stay at a few MB).
 _CHUNK = 1 << 16
+#: Entries per chunk of :class:`AIJValues`' gathers and scatters (numpy converts int32 indices to a temporary intp
+#: array: a chunk's, a few MB, rather than the whole pattern's).
+_GATHER = 1 << 20
+
+
+def petsc_library():
+    """The PETSc shared library petsc4py is linked to (found among the process's mappings)."""
+    with open("/proc/self/maps") as fh:
+        paths = {line.split()[-1] for line in fh if "libpetsc" in line and ".so" in line}
+    if not paths:
+        raise OSError("PETSc's shared library is not mapped")
+    return ctypes.CDLL(sorted(paths)[0])
+
+
+def _seq_blocks(PETSc, lib, A) -> list:
+    """The raw ``Mat`` handles of the diagonal and off-diagonal ``SeqAIJ`` blocks of ``A`` (``A`` itself alone on
+    one rank)."""
+    if A.getType() == "seqaij":
+        return [ctypes.c_void_p(A.handle)]
+    Ad, Ao, colmap = ctypes.c_void_p(), ctypes.c_void_p(), ctypes.c_void_p()
+    lib.MatMPIAIJGetSeqAIJ.restype = ctypes.c_int
+    err = lib.MatMPIAIJGetSeqAIJ(ctypes.c_void_p(A.handle), ctypes.byref(Ad), ctypes.byref(Ao), ctypes.byref(colmap))
+    if err:
+        raise PETSc.Error(err)
+    return [Ad, Ao]
+
+
+def _value_arrays(PETSc, lib, handles, nnz):
+    """Yield ``(block index, writable view of its values)`` for the ``SeqAIJ`` blocks ``handles`` of ``nnz``
+    entries each; every array is restored after."""
+    lib.MatSeqAIJGetArray.restype = ctypes.c_int
+    lib.MatSeqAIJRestoreArray.restype = ctypes.c_int
+    for b, h in enumerate(handles):
+        ptr = ctypes.c_void_p()
+        err = lib.MatSeqAIJGetArray(h, ctypes.byref(ptr))
+        if err:
+            raise PETSc.Error(err)
+        try:
+            n = nnz[b]
+            yield b, (np.ctypeslib.as_array((ctypes.c_double * n).from_address(ptr.value)) if n else np.zeros(0))
+        finally:
+            err = lib.MatSeqAIJRestoreArray(h, ctypes.byref(ptr))
+            if err:
+                raise PETSc.Error(err)
+
+
+def _split_sizes(PETSc, A) -> tuple:
+    """Entries of ``A``'s owned rows in its diagonal and off-diagonal blocks."""
+    local = A.getInfo(PETSc.Mat.InfoType.LOCAL)["nz_used"]
+    in_d = (A.getDiagonalBlock() if A.getType() == "mpiaij" else A).getInfo(PETSc.Mat.InfoType.LOCAL)["nz_used"]
+    return int(in_d), int(local - in_d)
+
+
+class AIJValues:
+    """Write (or read) the owned rows of an AIJ matrix, preallocated from a scalar CSR pattern (global columns sorted
+    in every row), straight into (from) its value arrays: the entries in owned columns in the diagonal block, the others in the
+    off-diagonal one, each in the pattern's order (how ``MATMPIAIJ`` stores them).
+
+    Parameters
+    ----------
+    PETSc : module
+    A : petsc4py Mat
+        ``seqaij`` or ``mpiaij``, assembled from ``(indptr, indices)`` (every entry present).
+    indices : ndarray
+        The pattern's global columns.
+    lib : ctypes.CDLL
+        The PETSc library petsc4py uses.
+    source : ndarray of int, optional
+        Where each entry of the pattern is found in the array :meth:`insert` is given (default: in order).
+
+    Raises
+    ------
+    ValueError
+        When ``A`` is not a real AIJ matrix or its blocks do not hold the pattern's entries.
+    """
+
+    def __init__(self, PETSc, A, indices, lib, source=None):
+        indices = np.asarray(indices)
+        if np.dtype(PETSc.ScalarType) != np.float64 or A.getType() not in ("seqaij", "mpiaij"):
+            raise ValueError(f"direct insertion needs a real AIJ matrix, got {A.getType()} of {PETSc.ScalarType}")
+        self.PETSc, self.lib = PETSc, lib
+        cstart, cend = A.getOwnershipRangeColumn()
+        in_d = (indices >= cstart) & (indices < cend)
+        if source is None:
+            source = np.arange(indices.size, dtype=np.int32 if indices.size < 2**31 else np.int64)
+        self.parts = (source[in_d], source[~in_d])  # (boolean masks: no index array of the whole pattern)
+        self.nnz = tuple(int(p.size) for p in self.parts)
+        if _split_sizes(PETSc, A) != self.nnz:
+            raise ValueError(f"the pattern's split {self.nnz} is not the matrix's {_split_sizes(PETSc, A)}")
+        self._handles = _seq_blocks(PETSc, lib, A)
+
+    def insert(self, A, values: np.ndarray) -> None:
+        """``A``'s owned rows = ``values`` (in the pattern's order, or ``source``'s). Collective (the assembly)."""
+        A.zeroEntries()  # also invalidates the blocks' cached inverse diagonals (SOR's)
+        for b, view in _value_arrays(self.PETSc, self.lib, self._handles, self.nnz):
+            idx = self.parts[b]
+            for lo in range(0, idx.size, _GATHER):  # numpy converts each chunk's indices to intp, not all of them
+                hi = lo + _GATHER
+                np.take(values, idx[lo:hi], out=view[lo:hi], mode="clip")  # "raise" would buffer the output
+        A.assemble()
+
+    def read(self, A, out: np.ndarray) -> None:
+        """``out`` (in the pattern's order, or ``source``'s) = ``A``'s owned rows. Not collective."""
+        if self.nnz != _split_sizes(self.PETSc, A):
+            raise ValueError("the matrix no longer has the pattern it was read with")
+        for b, view in _value_arrays(self.PETSc, self.lib, self._handles, self.nnz):
+            idx = self.parts[b]
+            for lo in range(0, idx.size, _GATHER):
+                out[idx[lo:lo + _GATHER]] = view[lo:lo + _GATHER]
 
 
 class DirectInsertion:
@@ -110,46 +219,16 @@ class DirectInsertion:
             self.gather.append(perm)
             self.unfed.append(unfed)
         # the value arrays are written through raw pointers: their lengths must be PETSc's
-        local = A.getInfo(PETSc.Mat.InfoType.LOCAL)["nz_used"]
-        in_d = (A.getDiagonalBlock() if A.getType() == "mpiaij" else A).getInfo(PETSc.Mat.InfoType.LOCAL)["nz_used"]
-        if (int(in_d), int(local - in_d)) != self.nnz:
-            raise ValueError(f"the pattern's split {self.nnz} is not the matrix's ({in_d:.0f}, {local - in_d:.0f})")
+        if _split_sizes(PETSc, A) != self.nnz:
+            raise ValueError(f"the pattern's split {self.nnz} is not the matrix's {_split_sizes(PETSc, A)}")
         self.ghost = (indptr[n_own:] - indptr[n_own]).astype(PETSc.IntType), \
             indices[nb:].astype(PETSc.IntType), np.arange(n_own, indptr.size - 1, dtype=PETSc.IntType)
         self.ghost_offset = bs * bs * nb
-        self._handles = self._blocks(A)
-
-    def _blocks(self, A) -> list:
-        """The raw ``Mat`` handles of the diagonal and off-diagonal ``SeqAIJ`` blocks (the first is ``A`` itself on
-        one rank)."""
-        if A.getType() == "seqaij":
-            return [ctypes.c_void_p(A.handle)]
-        Ad, Ao, colmap = ctypes.c_void_p(), ctypes.c_void_p(), ctypes.c_void_p()
-        self.lib.MatMPIAIJGetSeqAIJ.restype = ctypes.c_int
-        err = self.lib.MatMPIAIJGetSeqAIJ(ctypes.c_void_p(A.handle), ctypes.byref(Ad), ctypes.byref(Ao),
-                                          ctypes.byref(colmap))
-        if err:
-            raise self.PETSc.Error(err)
-        return [Ad, Ao]
+        self._handles = _seq_blocks(PETSc, lib, A)
 
     def arrays(self):
         """Yield ``(block index, writable view of its values)`` for each block; the arrays are restored after."""
-        lib = self.lib
-        lib.MatSeqAIJGetArray.restype = ctypes.c_int
-        lib.MatSeqAIJRestoreArray.restype = ctypes.c_int
-        for b, h in enumerate(self._handles):
-            ptr = ctypes.c_void_p()
-            err = lib.MatSeqAIJGetArray(h, ctypes.byref(ptr))
-            if err:
-                raise self.PETSc.Error(err)
-            try:
-                n = self.nnz[b]
-                view = np.ctypeslib.as_array((ctypes.c_double * n).from_address(ptr.value)) if n else np.zeros(0)
-                yield b, view
-            finally:
-                err = lib.MatSeqAIJRestoreArray(h, ctypes.byref(ptr))
-                if err:
-                    raise self.PETSc.Error(err)
+        yield from _value_arrays(self.PETSc, self.lib, self._handles, self.nnz)
 
     def insert(self, A, data: np.ndarray) -> None:
         """``A`` = the local matrix whose BSR values are ``data`` (summed over the ranks' ghost rows). Collective

@@ -7,25 +7,35 @@ set-up's choices (symmetric strength on the blocks' Frobenius norms, pyamg's sta
 candidates fitted per aggregate, one Jacobi step with the inverted block diagonal weighted by a Lanczos estimate
 of ``rho(D^-1 A)``). :class:`SmoothedAggregation` builds that hierarchy on the distributed matrix:
 
-* **Aggregates are local** (as GAMG's): each rank aggregates the nodes it owns from its diagonal block
-  (``MatGetDiagonalBlock``), so no aggregate crosses ranks and the tentative prolongator ``T`` is block
-  diagonal over the ranks. On one rank this is the serial aggregation. A node is a particle on the finest level
-  and an aggregate of the level above on the coarser ones; the aggregates of every level are kept for the next
-  matrix of the same pattern (the strength graph follows the springs, whose set never changes).
+* **Rows, not PETSc products.** Each rank holds its owned block rows of every level's operator as a scipy BSR
+  matrix (:mod:`springsim.distributed._rows`): the finest from the PETSc matrix (its pattern once, then the values
+  read straight from PETSc's arrays), the coarser ones from the products below. The set-up's sparse products run
+  rank by rank on those rows with the serial set-up's compiled block kernels and kept patterns
+  (:func:`springsim.linsolve._kernels.bsr_matmat`); the rows of other ranks a product needs (the ghost rows of
+  ``T`` and ``P``) come from their owners, and the rows a rank computes for other ranks' coarse nodes go to them
+  and are summed there. PETSc gets the prolongators and coarse operators for its ``PCMG``, their values written
+  into its arrays (:class:`springsim.distributed._aij.AIJValues`). Against PETSc's own parallel products (kept
+  for their symbolic phases) this builds the hierarchy in about half the time and holds a third of their
+  memory (BENCHMARKS.md#distributed).
+* **Aggregates are local** (as GAMG's): each rank aggregates the nodes it owns from its diagonal block (the rows'
+  own columns), so no aggregate crosses ranks and the tentative prolongator ``T`` is block diagonal over the ranks.
+  On one rank this is the serial aggregation. A node is a particle on the finest level and an aggregate of the level
+  above on the coarser ones; the aggregates of every level are kept for the next matrix of the same pattern (the
+  strength graph follows the springs, whose set never changes).
 * **Candidates** (the six rigid-body modes at the current positions on the finest level) are fitted per
   aggregate by pyamg's :func:`~pyamg.aggregation.tentative.fit_candidates`; a candidate an aggregate cannot
   represent (collinear particles carry five rigid modes) gives a zero column of ``T``, whose coarse row gets a
   unit diagonal: a decoupled row the coarse correction leaves at zero, where SOR would otherwise divide by zero.
   Coarse nodes keep six DOFs, so every level has uniform point blocks.
-* **Prolongator smoothing** ``P = T - (omega / rho) D^-1 A T``: ``A T`` by PETSc's parallel ``MatMatMult`` (it
-  fetches the rows of ``T`` other ranks own), ``D^-1`` the inverted point blocks (``MatInvertBlockDiagonal``) as a
-  block-diagonal matrix, ``rho`` from a Lanczos run on ``D^-1 A`` in the ``D`` inner product (12 steps, or 4 from
-  the level's previous top Ritz vector, as serially: :func:`springsim.linsolve._sa.lanczos_rho`).
-* **Coarse operators** ``P^T (A P)`` by an explicit transpose and two parallel products (about 0.6x the time of
-  ``MatPtAP``). Every product keeps its result matrix, so its symbolic phase is done once per run; that costs
-  memory (about 1.3-1.7x GAMG's peak). The coarsest level (at most ``max_coarse``
-  nodes over all ranks, or where aggregation stops coarsening) is factorised by LU, redundantly on every rank
-  when there are several, or smoothed like the others when it is larger than ``max_direct`` DOFs.
+* **Prolongator smoothing** ``P = T - (omega / rho) D^-1 A T``: ``A T`` over the owned rows (``T``'s ghost rows
+  fetched), ``D^-1`` the inverted diagonal blocks of the owned rows, ``rho`` from a Lanczos run on ``D^-1 A`` in
+  the ``D`` inner product with PETSc's product and all-reduced inner products (12 steps, or 4 from the level's
+  previous top Ritz vector, as serially: :func:`springsim.linsolve._sa.lanczos_rho`).
+* **Coarse operators** ``P^T (A P)``: ``A P`` over the owned rows (``P``'s ghost rows fetched), then the
+  transpose of the owned rows of ``P`` times it; on one rank the product is known to be symmetric and only its
+  upper half is computed, as serially. The coarsest level (at most ``max_coarse`` nodes over all ranks, or where
+  aggregation stops coarsening) is factorised by LU, redundantly on every rank when there are several, or
+  smoothed like the others when it is larger than ``max_direct`` DOFs.
 * :meth:`SmoothedAggregation.configure` puts the levels into a ``PCMG``: a multiplicative V-cycle, every level
   but the coarsest smoothed by one Richardson iteration of PETSc's local symmetric SOR before and after the
   coarse correction (the symmetric Gauss-Seidel pair of the serial AMG in point form; the preconditioner is
@@ -40,7 +50,9 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
+from ..linsolve._kernels import block_diagonal_inverse, bsr_matmat, resolve_kernels, smoothed_prolongator
 from ..linsolve._sa import _block_diagonal_operator, lanczos_recurrence
+from . import _rows
 
 __all__ = ["LOG_EVENT", "SmoothedAggregation"]
 
@@ -48,53 +60,31 @@ __all__ = ["LOG_EVENT", "SmoothedAggregation"]
 LOG_EVENT = "SpringsimSASetUp"
 
 
-def _local_csr(M) -> sp.csr_matrix:
-    """The rank's diagonal block of the PETSc matrix ``M`` (owned rows and columns) as scipy CSR."""
-    D = M.getDiagonalBlock() if M.getComm().getSize() > 1 else M
-    indptr, indices, data = D.getValuesCSR()
-    return sp.csr_matrix((data, indices, indptr), shape=D.getSize())
-
-
-def _aggregate(A: sp.csr_matrix, bs: int, theta: float) -> sp.csr_matrix:
-    """pyamg's standard aggregation of the nodes (``bs`` DOFs each) from symmetric strength on the node blocks'
-    Frobenius norms, as pyamg computes it for BSR matrices. Returns the node-by-aggregate operator (CSR; pyamg
-    returns one empty aggregate when no node has a strong connection: the caller drops empty ones)."""
+def _aggregate(A: sp.bsr_matrix, theta: float) -> sp.csr_matrix:
+    """pyamg's standard aggregation of the nodes of the square BSR matrix ``A`` (the rank's diagonal block) from
+    symmetric strength on its blocks' Frobenius norms. Returns the node-by-aggregate operator (CSR; pyamg returns one
+    empty aggregate when no node has a strong connection: the caller drops empty ones)."""
     from pyamg.aggregation.aggregate import standard_aggregation
     from pyamg.strength import symmetric_strength_of_connection
 
     if A.shape[0] == 0:
         return sp.csr_matrix((0, 0))
-    C = symmetric_strength_of_connection(sp.bsr_matrix(A, blocksize=(bs, bs)), theta=theta)
-    return standard_aggregation(C)[0].tocsr()
+    return standard_aggregation(symmetric_strength_of_connection(A, theta=theta))[0].tocsr()
 
 
-def _tentative(agg: sp.csr_matrix, B: np.ndarray):
+def _tentative(agg: sp.csr_matrix, B: np.ndarray, bs: int):
     """pyamg's :func:`~pyamg.aggregation.tentative.fit_candidates` on the owned nodes: ``T`` (owned rows, local
-    columns), the coarse candidates, and the coarse DOFs whose column of ``T`` is zero (``dead``)."""
+    columns; BSR of ``bs x k`` blocks), the coarse candidates, and the coarse DOFs whose column of ``T`` is zero
+    (``dead``)."""
     from pyamg.aggregation.tentative import fit_candidates
 
     n, k = B.shape
     if agg.shape[1] == 0:
-        return sp.csr_matrix((n, 0)), np.zeros((0, k)), np.zeros(0, dtype=np.int64)
+        return sp.bsr_matrix((n, 0), blocksize=(bs, k)), np.zeros((0, k)), np.zeros(0, dtype=np.int64)
     T, Bc = fit_candidates(agg, B)
-    T = T.tocsr()
+    T = T.tobsr(blocksize=(bs, k))
     norms = np.sqrt(np.asarray(T.multiply(T).sum(axis=0)).ravel())
     return T, Bc, np.flatnonzero(norms < 0.5)  # fit_candidates gives orthonormal columns or zero ones
-
-
-def _inverse_diagonal_blocks(M, bs: int) -> np.ndarray:
-    """The inverses of ``M``'s owned ``bs x bs`` diagonal node blocks, shape ``(owned nodes, bs, bs)``.
-
-    PETSc's ``MatInvertBlockDiagonal`` when ``M`` carries the block size; otherwise (a product algorithm chosen by
-    the user's options, such as ``-matmatmult_via backend``, may return a coarse operator with block size 1) the
-    blocks are read from the rank's diagonal block and inverted here, so the hierarchy does not depend on it."""
-    if M.getBlockSize() == bs:
-        return np.asarray(M.invertBlockDiagonal()).reshape(-1, bs, bs)
-    D = _local_csr(M).tocoo()
-    keep = D.row // bs == D.col // bs
-    blocks = np.zeros((D.shape[0] // bs, bs, bs))
-    blocks[D.row[keep] // bs, D.row[keep] % bs, D.col[keep] % bs] = D.data[keep]
-    return np.linalg.inv(blocks)
 
 
 def _block_diagonal(blocks: np.ndarray) -> sp.csr_matrix:
@@ -103,27 +93,32 @@ def _block_diagonal(blocks: np.ndarray) -> sp.csr_matrix:
 
 
 class _Level:
-    """One level's PETSc matrices and what the next matrix of the same pattern reuses.
+    """One level: its PETSc matrices and what the next matrix of the same pattern reuses.
 
-    ``A`` the operator, ``P`` the prolongator from the next coarser level; ``T``, ``Dinv``, ``AT``, ``Pt``, ``AP``
-    the intermediate matrices kept for their patterns (PETSc's symbolic phase is done once); ``aggregates``
-    (node by aggregate), ``ritz`` (the top Ritz vector of ``D^-1 A``) and ``dead`` (owned coarse DOFs whose
-    prolongator column is zero, or None).
+    ``A`` the operator (PETSc), ``P`` the prolongator from the next coarser level (PETSc); ``rows`` the owned block
+    rows of ``A`` (:class:`~springsim.distributed._rows.Rows`) and ``halo`` who sends their ghost rows;
+    ``aggregates`` (node by aggregate), ``ritz`` (the top Ritz vector of ``D^-1 A``) and ``dead`` (owned coarse DOFs
+    whose prolongator column is zero, or None); ``Pext`` the prolongator's owned and ghost rows over one local
+    numbering of the coarse nodes, ``R`` the transpose of its owned rows; ``plans`` the products' kept patterns,
+    ``merge`` the sum of the coarse rows, ``csrP`` and ``csrA`` the scalar patterns given to PETSc, ``extract``
+    (finest level) the conversion of PETSc's rows to blocks.
     """
 
-    __slots__ = ("A", "P", "T", "Dinv", "AT", "Pt", "AP", "aggregates", "ritz", "dead", "owned")
+    __slots__ = ("A", "P", "rows", "halo", "aggregates", "ritz", "dead", "Pext", "R", "plans", "merge", "csrP",
+                 "csrA", "extract", "owned")
 
     def __init__(self, A, owned: bool):
         self.A, self.owned = A, owned
-        self.P = self.T = self.Dinv = self.AT = self.Pt = self.AP = None
-        self.aggregates = self.ritz = self.dead = None
+        self.P = self.rows = self.halo = self.aggregates = self.ritz = self.dead = None
+        self.Pext = self.R = self.merge = self.csrP = self.csrA = self.extract = None
+        self.plans = {}
 
     def destroy(self, operator: bool = True) -> None:
-        for name in ("P", "T", "Dinv", "AT", "Pt", "AP"):
-            m = getattr(self, name)
-            if m is not None:
-                m.destroy()
-                setattr(self, name, None)
+        if self.P is not None:
+            self.P.destroy()
+            self.P = None
+        self.Pext = self.R = self.merge = self.csrP = None
+        self.plans = {}
         if operator and self.owned and self.A is not None:
             self.A.destroy()
             self.A = None
@@ -150,6 +145,9 @@ class SmoothedAggregation:
     lanczos_steps, warm_lanczos_steps : int
         Lanczos steps of the spectral-radius estimate from a random start and from the level's previous top Ritz
         vector.
+    kernels : {"auto", "numba", "numpy"}
+        The local products' kernels (:func:`springsim.linsolve._kernels.bsr_matmat`; ``"auto"``: numba when
+        installed).
 
     Notes
     -----
@@ -158,11 +156,13 @@ class SmoothedAggregation:
     """
 
     def __init__(self, PETSc, comm, *, theta: float = 0.1, omega: float = 4.0 / 3.0, max_coarse: int = 50,
-                 max_direct: int = 3000, max_levels: int = 10, lanczos_steps: int = 12, warm_lanczos_steps: int = 4):
+                 max_direct: int = 3000, max_levels: int = 10, lanczos_steps: int = 12, warm_lanczos_steps: int = 4,
+                 kernels: str = "auto"):
         self.PETSc, self.comm, self.mpi = PETSc, comm, comm.tompi4py()
         self.theta, self.omega = float(theta), float(omega)
         self.max_coarse, self.max_direct, self.max_levels = int(max_coarse), int(max_direct), int(max_levels)
         self.lanczos_steps, self.warm_lanczos_steps = int(lanczos_steps), int(warm_lanczos_steps)
+        self.kernels = resolve_kernels(kernels)
         self.levels: list[_Level] = []
         #: PETSc log event of :meth:`build` and :meth:`galerkin` (its message lengths are their communication)
         self.event = PETSc.Log.Event(LOG_EVENT)
@@ -207,53 +207,91 @@ class SmoothedAggregation:
         finally:
             self.event.end()
 
+    def _finest_rows(self, lv: _Level, A, bs: int) -> None:
+        """``lv.rows`` = the owned block rows of the PETSc matrix ``A`` (its current values), their pattern taken once
+        per matrix (the caller's matrix keeps its pattern until :meth:`forget`)."""
+        if lv.extract is None or lv.extract.matrix != A.handle:
+            indptr, indices, _ = A.getValuesCSR()
+            lo, hi = (r // bs for r in A.getOwnershipRange())
+            lv.extract = _rows.FromScalarCSR(indptr, indices, bs, lo, hi, A.getSize()[1] // bs)
+            lv.extract.matrix = A.handle
+            lv.extract.reader = self._reader(A, indices, lv.extract.dest)
+            if lv.extract.reader is not None:
+                lv.extract.dest = None  # the reader holds it, split between PETSc's two arrays
+            del indptr, indices
+        lv.rows = lv.extract(A)
+        if lv.halo is None or not lv.halo.matches(lv.rows.ghosts):
+            lv.halo = _rows.Halo(self.mpi, _rows.offsets_of(self.mpi, lv.rows.n_own), lv.rows.ghosts)
+
+    def _reader(self, A, indices, dest):
+        """An :class:`~springsim.distributed._aij.AIJValues` reading ``A``'s arrays into blocks (``dest``), or None
+        (``getValuesCSR`` then) where it cannot. Not collective."""
+        from ._aij import AIJValues, petsc_library
+
+        try:
+            return AIJValues(self.PETSc, A, indices, petsc_library(), source=dest)
+        except (ValueError, OSError, AttributeError, self.PETSc.Error):
+            return None
+
     def _build(self, A, B_own: np.ndarray, block: int) -> list:
-        PETSc, mpi = self.PETSc, self.mpi
+        mpi = self.mpi
         old = self.levels
         if old:
             old[0].A = A
         levels = old[:1] if old else [_Level(A, owned=False)]
-        Ak, Bk, bs = A, np.asarray(B_own, dtype=np.float64), int(block)
+        self._finest_rows(levels[0], A, int(block))
+        Bk = np.asarray(B_own, dtype=np.float64)
         while len(levels) < self.max_levels:
             li = len(levels) - 1
             lv = levels[li]
-            n_nodes = Ak.getLocalSize()[0] // bs
+            rows = lv.rows
+            bs = rows.bsr.blocksize[0]
+            n_nodes = rows.n_own
             if mpi.allreduce(n_nodes) <= self.max_coarse:
                 break
+            Asq = rows.square()
             if lv.aggregates is None or lv.aggregates.shape[0] != n_nodes:  # first build (or a new pattern)
                 lv.destroy(operator=False)
                 for stale in old[li + 1:]:  # their sizes follow these aggregates
                     stale.destroy()
                 old = old[:li + 1]
-                agg = _aggregate(_local_csr(Ak), bs, self.theta)
+                agg = _aggregate(Asq, self.theta)
                 lv.aggregates, lv.ritz = agg[:, np.bincount(agg.indices, minlength=agg.shape[1]) > 0], None
             agg = lv.aggregates
             n_agg = mpi.allreduce(agg.shape[1])
             if n_agg >= mpi.allreduce(n_nodes) or n_agg == 0:
                 break  # nothing (left) to coarsen
-            k = Bk.shape[1]
-            Tl, Bc, dead = _tentative(agg, Bk)
-            lv.T = self._fill(lv.T, Tl, (bs, k), mpi.exscan(Tl.shape[1]) or 0)
-            Dinv = _inverse_diagonal_blocks(Ak, bs)
-            lv.Dinv = self._fill(lv.Dinv, _block_diagonal(Dinv), (bs, bs), Ak.getOwnershipRange()[0])
-            rho, lv.ritz = self._lanczos(Ak, np.linalg.inv(Dinv), Dinv, lv.ritz)
+            lv.Pext = lv.R = None  # recomputed below: not alive beside the new ones
+            T, Bc, dead = _tentative(agg, Bk, bs)
+            D, Dinv = block_diagonal_inverse(Asq, self.kernels)
+            del Asq
+            rho, lv.ritz = self._lanczos(lv.A, D, Dinv, lv.ritz)
             if not (np.isfinite(rho) and rho > 0.0):
                 raise ArithmeticError("spectral radius estimate of D^-1 A broke down (matrix not positive definite)")
-            lv.AT = Ak.matMult(lv.T, result=lv.AT)
-            # P = T - (omega / rho) D^-1 (A T), computed into the product D^-1 (A T) itself: T's pattern is in it
-            # (D^-1 and A hold their diagonal blocks), so the axpy adds no entry and the product's symbolic phase
-            # stays valid for the next build
-            lv.P = lv.Dinv.matMult(lv.AT, result=lv.P)
-            lv.P.scale(-self.omega / rho)
-            lv.P.axpy(1.0, lv.T, structure=PETSc.Mat.Structure.SUBSET)
-            coarse = old[li + 1] if li + 1 < len(old) else _Level(None, owned=True)
-            lv.Pt = lv.P.transpose(lv.Pt if lv.Pt is not None else PETSc.Mat())
+            coarse_off = _rows.offsets_of(mpi, agg.shape[1])
+            c_lo, c_hi = (int(c) for c in coarse_off[mpi.Get_rank():mpi.Get_rank() + 2])
+            # A T over the owned rows: T's ghost rows from their owners
+            Trows = _rows.Rows(T, np.arange(c_lo, c_hi, dtype=np.int64), c_hi - c_lo)
+            Text = _rows.stack_rows(Trows, *_rows.fetch_rows(lv.halo, Trows), c_lo, c_hi)
+            AT, lv.plans["AT"] = bsr_matmat(rows.bsr, Text.bsr, self.kernels, lv.plans.get("AT"))
+            # P = T - (omega / rho) D^-1 (A T) on the owned rows, then its ghost rows
+            Pown = smoothed_prolongator(AT, _rows.head(Text.bsr, n_nodes), Dinv, self.omega / rho, self.kernels)
+            Pown = _rows.Rows(Pown, Text.gids, c_hi - c_lo)
+            lv.Pext = _rows.stack_rows(Pown, *_rows.fetch_rows(lv.halo, Pown), c_lo, c_hi)
+            del AT, Pown, Text, T, rows  # (the level's rows go in _coarse_operator, once A P is formed)
+            own = _rows.head(lv.Pext.bsr, n_nodes)
+            lv.R = own.T.tobsr(blocksize=(own.blocksize[1], own.blocksize[0]))
+            lv.P, lv.csrP = self._fill(lv.P, lv.csrP, _rows.Rows(own, lv.Pext.gids, c_hi - c_lo),
+                                       (n_nodes * bs, (c_hi - c_lo) * Bk.shape[1]), (bs, Bk.shape[1]))
             lv.dead = dead if mpi.allreduce(int(dead.size)) else None
-            self._coarse_operator(lv, coarse)
+            coarse = old[li + 1] if li + 1 < len(old) else _Level(None, owned=True)
+            self._coarse_operator(lv, coarse, (c_lo, c_hi), coarse_off)
             levels.append(coarse)
-            Ak, Bk, bs = coarse.A, Bc, k
+            Bk = Bc
         for lv in old[len(levels):]:
             lv.destroy()
+        for lv in levels:  # the operators' rows are rebuilt from the finest one's next time (galerkin, build)
+            lv.rows = None
         levels[-1].destroy(operator=False)  # the coarsest level has no prolongator
         levels[-1].aggregates = levels[-1].ritz = None
         self.levels = levels
@@ -264,43 +302,116 @@ class SmoothedAggregation:
         kept (PETSc's ``-pc_gamg_reuse_interpolation`` for these levels). Collective."""
         self.event.begin()
         try:
-            for lv, coarse in zip(self.levels[:-1], self.levels[1:]):
-                self._coarse_operator(lv, coarse)
+            levels = self.levels
+            if len(levels) > 1:
+                self._finest_rows(levels[0], levels[0].A, levels[0].extract.bs)
+            mpi, r = self.mpi, self.mpi.Get_rank()
+            for lv, coarse in zip(levels[:-1], levels[1:]):
+                off = _rows.offsets_of(mpi, lv.Pext.n_own)
+                self._coarse_operator(lv, coarse, (int(off[r]), int(off[r + 1])), off)
+            for lv in levels:
+                lv.rows = None
         finally:
             self.event.end()
 
-    def _coarse_operator(self, lv: _Level, coarse: _Level) -> None:
-        """``coarse.A = P^T (A P)`` of ``lv``, by the kept transpose and two products (about 0.6x the time of
-        PETSc's ``MatPtAP`` on the benchmark cloth), the symbolic phases reused; coarse DOFs whose prolongator
-        column is zero get a unit diagonal (a decoupled row the coarse correction leaves at zero)."""
-        lv.AP = lv.A.matMult(lv.P, result=lv.AP)
-        coarse.A = lv.Pt.matMult(lv.AP, result=coarse.A)
-        if lv.dead is not None:
-            ones = coarse.A.createVecs()[0]
-            ones.array[:] = 0.0
-            ones.array[lv.dead] = 1.0
-            coarse.A.setDiagonal(ones, addv=self.PETSc.InsertMode.ADD_VALUES)
-            ones.destroy()
+    def _coarse_operator(self, lv: _Level, coarse: _Level, own: tuple, coarse_off: np.ndarray) -> None:
+        """``coarse.A = P^T (A P)`` of ``lv``: each rank multiplies its rows (``R (A P_ext)``, the compiled block
+        kernels with kept patterns), sends the rows of other ranks' coarse nodes to them and sums what it receives
+        for its own; coarse DOFs whose prolongator column is zero get a unit diagonal (a decoupled row the coarse
+        correction leaves at zero)."""
+        mpi = self.mpi
+        c_lo, c_hi = own
+        nc = c_hi - c_lo
+        AP, lv.plans["AP"] = bsr_matmat(lv.rows.bsr, lv.Pext.bsr, self.kernels, lv.plans.get("AP"))
+        C, lv.plans["RAP"] = bsr_matmat(lv.R, AP, self.kernels, lv.plans.get("RAP"), symmetric=mpi.Get_size() == 1)
+        del AP
+        k = C.blocksize[0]
+        gids = lv.Pext.gids
+        # rows of other ranks' coarse nodes (the ghost part of the numbering, sorted: grouped by owner) to them
+        split = int(C.indptr[nc])
+        dest = np.searchsorted(coarse_off, gids[nc:], side="right") - 1
+        ip, cg, blocks, tag, _ = _rows.send_rows(mpi, dest, C.indptr[nc:] - split, gids[C.indices[split:]],
+                                                 C.data[split:], tag=gids[nc:])
+        rows = np.concatenate([np.repeat(np.arange(nc, dtype=np.int64), np.diff(C.indptr[:nc + 1])),
+                               np.repeat(tag - c_lo, np.diff(ip))])
+        colgid = np.concatenate([gids[C.indices[:split]], cg])
+        n_cols = int(coarse_off[-1])
+        if lv.merge is None or not lv.merge.matches(rows, colgid, n_cols):
+            lv.merge = _rows.RowMerge(rows, colgid, nc, n_cols)
+        m = lv.merge
+        data = m(np.concatenate([C.data[:split], blocks]))
+        if lv.dead is not None:  # unit diagonal entries of the dead DOFs (their diagonal blocks exist: T's pattern)
+            d = lv.dead
+            diag = np.flatnonzero(m.rows == m.colgid - c_lo)
+            data[diag[np.searchsorted(m.rows[diag], d // k)], d % k, d % k] += 1.0
+        local, cgids = _rows.local_columns(m.colgid, c_lo, c_hi)
+        crows = _rows.Rows(sp.bsr_matrix((data, local, m.indptr), shape=(nc * k, cgids.size * k)), cgids, nc)
+        lv.rows = None  # this level's rows are done with (the next build or galerkin takes them afresh)
+        coarse.rows = crows
+        if coarse.halo is None or not coarse.halo.matches(crows.ghosts):
+            coarse.halo = _rows.Halo(mpi, coarse_off, crows.ghosts)
+        coarse.A, coarse.csrA = self._fill(coarse.A, coarse.csrA, crows, (nc * k, nc * k), (k, k))
 
-    def _fill(self, M, local: sp.csr_matrix, block_sizes: tuple, col_offset: int):
-        """``M`` with its owned rows set to ``local`` (columns shifted by ``col_offset``): a new distributed AIJ
-        matrix when ``M`` is None, else the values of the same pattern replaced."""
+    def _fill(self, M, csr, rows, local_shape: tuple, block_sizes: tuple):
+        """``(M, csr)``: ``M`` with its owned rows set to ``rows``, ``csr`` their scalar pattern
+        (:class:`~springsim.distributed._rows.ScalarCSR`, global columns). The values are replaced when ``rows`` has
+        the pattern of ``csr`` (written into PETSc's arrays by :class:`~springsim.distributed._aij.AIJValues`
+        when it reproduced PETSc's own insertion on every rank, else by ``MatSetValuesCSR``); otherwise (or ``M``
+        None) a new distributed AIJ matrix and pattern. The patterns follow the matrix pattern and the aggregates,
+        so a new one comes only with a new build."""
         PETSc = self.PETSc
+        if csr is None or not csr.matches(rows):
+            csr = _rows.ScalarCSR(rows)
+            if M is not None:
+                M.destroy()
+                M = None
+        if M is not None:
+            if csr.writer is not None:  # straight from the blocks
+                csr.writer.insert(M, np.ascontiguousarray(rows.bsr.data).reshape(-1))
+            else:
+                M.setValuesCSR(*csr.petsc, csr.values(rows))
+                M.assemble()
+            return M, csr
+        values = csr.values(rows)
         IT = PETSc.IntType
-        local = local.tocsr()
-        local.sort_indices()
-        indptr, indices = local.indptr.astype(IT), (local.indices + col_offset).astype(IT)
-        if M is None:
-            M = PETSc.Mat().create(comm=self.comm)
-            M.setSizes(((local.shape[0], None), (local.shape[1], None)))
-            M.setBlockSizes(*block_sizes)
-            M.setType(PETSc.Mat.Type.AIJ)
-            M.setPreallocationCSR((indptr, indices, local.data))
-            M.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, True)
-        else:
-            M.setValuesCSR(indptr, indices, local.data)
+        csr.petsc = (csr.indptr.astype(IT, copy=False), csr.indices.astype(IT, copy=False))
+        M = PETSc.Mat().create(comm=self.comm)
+        M.setSizes(((local_shape[0], None), (local_shape[1], None)))
+        M.setBlockSizes(*block_sizes)
+        M.setType(PETSc.Mat.Type.AIJ)
+        M.setPreallocationCSR((*csr.petsc, values))
+        M.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, True)
         M.assemble()
-        return M
+        csr.writer = self._writer(M, csr, rows)
+        if csr.writer is not None:  # the pattern's scalar arrays are not needed again
+            csr.indptr = csr.indices = csr.perm = csr.petsc = None
+        return M, csr
+
+    def _writer(self, M, csr, rows):
+        """A :class:`~springsim.distributed._aij.AIJValues` of ``rows``' blocks into ``M`` (just assembled by PETSc
+        from them) when it writes the same matrix on every rank (the products with a random vector agree to 1e-12 of
+        ``|M|_inf |x|_inf``; ``M`` then holds its result), else None. Collective."""
+        from mpi4py import MPI
+
+        from ._aij import AIJValues, petsc_library
+
+        try:
+            writer = AIJValues(self.PETSc, M, csr.indices, petsc_library(), source=csr.perm)
+        except (ValueError, OSError, AttributeError, self.PETSc.Error):
+            writer = None
+        if not self.mpi.allreduce(int(writer is not None), op=MPI.MIN):
+            return None
+        x, y = M.createVecs()
+        x.array[:] = np.random.default_rng(1 + self.mpi.Get_rank()).uniform(0.5, 1.5, x.getLocalSize())
+        M.mult(x, y)
+        ref = y.array.copy()
+        scale = M.norm(self.PETSc.NormType.INFINITY) * 1.5
+        writer.insert(M, np.ascontiguousarray(rows.bsr.data).reshape(-1))
+        M.mult(x, y)
+        ok = bool(np.all(np.abs(y.array - ref) <= 1e-12 * scale))
+        x.destroy()
+        y.destroy()
+        return writer if self.mpi.allreduce(int(ok), op=MPI.MIN) else None
 
     def _lanczos(self, A, D: np.ndarray, Dinv: np.ndarray, start):
         """``(rho, y)``: the largest Ritz value of ``D^-1 A`` in the ``D`` inner product (``D`` and ``D^-1`` the

@@ -52,6 +52,7 @@ from ..forces import make_force_terms
 from ..linsolve import DEFAULT_RTOL, LinearSolveResult
 from ..linsolve.amg import rigid_body_modes
 from ..system import System
+from ._aij import petsc_library as _petsc_library
 from ._petsc import import_petsc
 from .partition import PARTITIONERS, LocalPart, contiguous_offsets, pair_families, system_order
 from .sa import SmoothedAggregation
@@ -320,17 +321,6 @@ def _set_vertex_weights(mp, w: np.ndarray) -> None:
     err = lib.MatPartitioningSetVertexWeights(ctypes.c_void_p(mp.handle), ptr)
     if err:
         raise PETSc.Error(err)
-
-
-def _petsc_library():
-    """The PETSc shared library petsc4py is linked to (found among the process's mappings)."""
-    import ctypes
-
-    with open("/proc/self/maps") as fh:
-        paths = {line.split()[-1] for line in fh if "libpetsc" in line and ".so" in line}
-    if not paths:
-        raise OSError("PETSc's shared library is not mapped")
-    return ctypes.CDLL(sorted(paths)[0])
 
 
 class _Operator:

@@ -233,10 +233,11 @@ def pc_reuse(scene, out):
 
 def sa_levels(out):
     """springsim's smoothed aggregation over PETSc matrices (``springsim.distributed.sa``), rank 0 writes ``out``
-    (a JSON): on one rank its levels are the serial set-up's; on any number, CG with it solves the benchmark cloth
+    (a JSON): on one rank its levels are the serial set-up's; on any number, the coarse operators of a build and of
+    ``galerkin`` are ``P^T A P`` of the gathered matrices, the values go straight into and out of PETSc's arrays (and
+    through PETSc's calls when that path is refused, with the same hierarchy), CG with it solves the benchmark cloth
     and a straight rope (whose aggregates cannot carry the rotation about the rope: zero prolongator columns) to the
-    tolerance, the coarse operators recomputed by ``galerkin`` are a fresh build's, and a matrix that is not positive
-    definite falls back to GAMG."""
+    tolerance, and a matrix that is not positive definite falls back to GAMG."""
     import json
 
     from springsim import ModelBuilder
@@ -272,6 +273,21 @@ def sa_levels(out):
                            residual=float(np.sqrt(s.sum(r @ r) / s.sum(rhs @ rhs))))
     levels = s._sa.levels
     report["cloth_levels"] = [lv.A.getSize()[0] for lv in levels]
+
+    def galerkin_error(levels):
+        """Largest relative difference between a coarse operator and ``P^T A P`` of the level above."""
+        worst = 0.0
+        for fine, coarse in zip(levels[:-1], levels[1:]):
+            P, Af = whole_dense(fine.P), whole_dense(fine.A)
+            ref = P.T @ Af @ P
+            worst = max(worst, float(np.abs(whole_dense(coarse.A) - ref).max() / np.abs(ref).max()))
+        return worst
+
+    report["build_diff"] = galerkin_error(levels)
+    report["direct"] = dict(read=levels[0].extract.reader is not None,
+                            write=[lv.csrP.writer is not None for lv in levels[:-1]]
+                            + [lv.csrA.writer is not None for lv in levels[1:]])
+    fresh = [whole_dense(lv.A) for lv in levels[1:]]
     if s.size == 1:  # the serial set-up of the same matrix
         import scipy.sparse as sp
         bsr = sp.csr_matrix(whole_dense(s.A)).tobsr(blocksize=(3, 3))
@@ -295,18 +311,33 @@ def sa_levels(out):
     report["indefinite"] = dict(ok=res.converged, method=res.method, failure=res.failure,
                                 residual=float(np.sqrt(s.sum(r @ r) / s.sum(rhs @ rhs))))
     s.destroy()
-    # a product algorithm from the user's options that leaves the coarse operators without block size 3 or 6
-    # (PETSc's "backend" MatMatMult of parallel matrices; one rank's sequential products have no such algorithm):
-    # the diagonal blocks are read from the matrix, the hierarchy is the same
-    ranks = s.size
-    s = DistributedSystem(model, rtol=1e-8, petsc_options="-matmatmult_via backend" if ranks > 1 else None)
-    q, v = s.local_state(q0, v0)
-    A = s.assemble(q, v, h * h, h, "spd")
-    res = s.solve(A, rhs)
-    report["backend_products"] = dict(ok=res.converged, its=res.iterations, method=res.method,
-                                      block_sizes=[lv.A.getBlockSize() for lv in s._sa.levels],
-                                      levels=[lv.A.getSize()[0] for lv in s._sa.levels])
-    s.destroy()
+    # without the direct access to PETSc's arrays (refused, as for a matrix type it does not handle): the values go
+    # through getValuesCSR and MatSetValuesCSR, the hierarchy and the iterations are the same
+    import springsim.distributed._aij as aij
+
+    class Refused(aij.AIJValues):
+        def __init__(self, *args, **kwargs):
+            raise ValueError("refused")
+
+    kept, aij.AIJValues = aij.AIJValues, Refused
+    try:
+        s = DistributedSystem(model, rtol=1e-8)
+        q, v = s.local_state(q0, v0)
+        A = s.assemble(q, v, h * h, h, "spd")
+        res = s.solve(A, rhs)
+        lv = s._sa.levels
+        report["petsc_calls"] = dict(ok=res.converged, its=res.iterations, levels=[m.A.getSize()[0] for m in lv],
+                                     read=lv[0].extract.reader is not None,
+                                     write=any(m.csrA.writer is not None for m in lv[1:]),
+                                     diff=max(float(np.abs(whole_dense(m.A) - f).max() / np.abs(f).max())
+                                              for m, f in zip(lv[1:], fresh)),
+                                     build_diff=galerkin_error(lv))
+        A = s.assemble(q, v, 4 * h * h, 2 * h, "spd")
+        s._sa.galerkin()
+        report["petsc_calls"]["galerkin_diff"] = galerkin_error(s._sa.levels)
+        s.destroy()
+    finally:
+        aij.AIJValues = kept
 
     # a straight rope: every aggregate collinear, the rotation about the rope is not representable
     b = ModelBuilder(gravity=-9.81)
