@@ -44,31 +44,33 @@ def petsc_library():
 def _seq_blocks(PETSc, lib, A) -> list:
     """The raw ``Mat`` handles of the diagonal and off-diagonal ``SeqAIJ`` blocks of ``A`` (``A`` itself alone on
     one rank)."""
-    if A.getType() == "seqaij":
+    if A.getType() in ("seqaij", "seqbaij"):
         return [ctypes.c_void_p(A.handle)]
     Ad, Ao, colmap = ctypes.c_void_p(), ctypes.c_void_p(), ctypes.c_void_p()
-    lib.MatMPIAIJGetSeqAIJ.restype = ctypes.c_int
-    err = lib.MatMPIAIJGetSeqAIJ(ctypes.c_void_p(A.handle), ctypes.byref(Ad), ctypes.byref(Ao), ctypes.byref(colmap))
+    get = lib.MatMPIAIJGetSeqAIJ if A.getType() == "mpiaij" else lib.MatMPIBAIJGetSeqBAIJ
+    get.restype = ctypes.c_int
+    err = get(ctypes.c_void_p(A.handle), ctypes.byref(Ad), ctypes.byref(Ao), ctypes.byref(colmap))
     if err:
         raise PETSc.Error(err)
     return [Ad, Ao]
 
 
-def _value_arrays(PETSc, lib, handles, nnz):
-    """Yield ``(block index, writable view of its values)`` for the ``SeqAIJ`` blocks ``handles`` of ``nnz``
-    entries each; every array is restored after."""
-    lib.MatSeqAIJGetArray.restype = ctypes.c_int
-    lib.MatSeqAIJRestoreArray.restype = ctypes.c_int
+def _value_arrays(PETSc, lib, handles, nnz, blocked=False):
+    """Yield ``(block index, writable view of its values)`` for the ``SeqAIJ`` (``blocked``: ``SeqBAIJ``) blocks
+    ``handles`` of ``nnz`` entries each; every array is restored after."""
+    get, restore = ((lib.MatSeqBAIJGetArray, lib.MatSeqBAIJRestoreArray) if blocked
+                    else (lib.MatSeqAIJGetArray, lib.MatSeqAIJRestoreArray))
+    get.restype = restore.restype = ctypes.c_int
     for b, h in enumerate(handles):
         ptr = ctypes.c_void_p()
-        err = lib.MatSeqAIJGetArray(h, ctypes.byref(ptr))
+        err = get(h, ctypes.byref(ptr))
         if err:
             raise PETSc.Error(err)
         try:
             n = nnz[b]
             yield b, (np.ctypeslib.as_array((ctypes.c_double * n).from_address(ptr.value)) if n else np.zeros(0))
         finally:
-            err = lib.MatSeqAIJRestoreArray(h, ctypes.byref(ptr))
+            err = restore(h, ctypes.byref(ptr))
             if err:
                 raise PETSc.Error(err)
 
@@ -76,38 +78,44 @@ def _value_arrays(PETSc, lib, handles, nnz):
 def _split_sizes(PETSc, A) -> tuple:
     """Entries of ``A``'s owned rows in its diagonal and off-diagonal blocks."""
     local = A.getInfo(PETSc.Mat.InfoType.LOCAL)["nz_used"]
-    in_d = (A.getDiagonalBlock() if A.getType() == "mpiaij" else A).getInfo(PETSc.Mat.InfoType.LOCAL)["nz_used"]
+    in_d = (A.getDiagonalBlock() if A.getType().startswith("mpi") else A).getInfo(PETSc.Mat.InfoType.LOCAL)["nz_used"]
     return int(in_d), int(local - in_d)
 
 
 class AIJValues:
-    """Write (or read) the owned rows of an AIJ matrix, preallocated from a scalar CSR pattern (global columns sorted
-    in every row), straight into (from) its value arrays: the entries in owned columns in the diagonal block, the others in the
-    off-diagonal one, each in the pattern's order (how ``MATMPIAIJ`` stores them).
+    """Write (or read) the owned rows of an AIJ or BAIJ matrix straight into (from) its value arrays.
+
+    The matrix was preallocated from a pattern of global columns sorted in every row. ``MATMPIAIJ`` stores a row's
+    entries in owned columns in its diagonal block and the others in the off-diagonal one, each part in the
+    pattern's order; ``MATMPIBAIJ`` the same with blocks, each block column by column. The caller lists the entries
+    in that storage order (``indices``: a global column of each, which tells the parts apart; ``source``: where
+    each is in the arrays :meth:`insert` is given and :meth:`read` fills).
 
     Parameters
     ----------
     PETSc : module
     A : petsc4py Mat
-        ``seqaij`` or ``mpiaij``, assembled from ``(indptr, indices)`` (every entry present).
+        ``seqaij``, ``mpiaij``, ``seqbaij`` or ``mpibaij``, assembled, every entry of the pattern present.
     indices : ndarray
-        The pattern's global columns.
+        A global column of every entry, in storage order.
     lib : ctypes.CDLL
         The PETSc library petsc4py uses.
     source : ndarray of int, optional
-        Where each entry of the pattern is found in the array :meth:`insert` is given (default: in order).
+        Where each entry is in the flat arrays of :meth:`insert` and :meth:`read` (default: in storage order).
 
     Raises
     ------
     ValueError
-        When ``A`` is not a real AIJ matrix or its blocks do not hold the pattern's entries.
+        When ``A`` is not a real AIJ or BAIJ matrix or its blocks do not hold the pattern's entries.
     """
 
     def __init__(self, PETSc, A, indices, lib, source=None):
         indices = np.asarray(indices)
-        if np.dtype(PETSc.ScalarType) != np.float64 or A.getType() not in ("seqaij", "mpiaij"):
-            raise ValueError(f"direct insertion needs a real AIJ matrix, got {A.getType()} of {PETSc.ScalarType}")
+        if np.dtype(PETSc.ScalarType) != np.float64 or A.getType() not in ("seqaij", "mpiaij", "seqbaij", "mpibaij"):
+            raise ValueError(f"direct insertion needs a real AIJ or BAIJ matrix, got {A.getType()} of "
+                             f"{PETSc.ScalarType}")
         self.PETSc, self.lib = PETSc, lib
+        self.blocked = A.getType().endswith("baij")
         cstart, cend = A.getOwnershipRangeColumn()
         in_d = (indices >= cstart) & (indices < cend)
         if source is None:
@@ -116,12 +124,20 @@ class AIJValues:
         self.nnz = tuple(int(p.size) for p in self.parts)
         if _split_sizes(PETSc, A) != self.nnz:
             raise ValueError(f"the pattern's split {self.nnz} is not the matrix's {_split_sizes(PETSc, A)}")
-        self._handles = _seq_blocks(PETSc, lib, A)
+        _seq_blocks(PETSc, lib, A)  # (raises where the blocks cannot be had)
+
+    def _arrays(self, A):
+        """The value arrays of ``A``'s blocks (asked for each time: PETSc may replace a parallel matrix's blocks,
+        as ``MATMPIBAIJ`` does in a redundant coarse solve's set-up); ValueError when their sizes are not the
+        pattern's."""
+        if self.nnz != _split_sizes(self.PETSc, A):
+            raise ValueError("the matrix no longer has the pattern this access was made for")
+        return _value_arrays(self.PETSc, self.lib, _seq_blocks(self.PETSc, self.lib, A), self.nnz, self.blocked)
 
     def insert(self, A, values: np.ndarray) -> None:
         """``A``'s owned rows = ``values`` (in the pattern's order, or ``source``'s). Collective (the assembly)."""
         A.zeroEntries()  # also invalidates the blocks' cached inverse diagonals (SOR's)
-        for b, view in _value_arrays(self.PETSc, self.lib, self._handles, self.nnz):
+        for b, view in self._arrays(A):
             idx = self.parts[b]
             for lo in range(0, idx.size, _GATHER):  # numpy converts each chunk's indices to intp, not all of them
                 hi = lo + _GATHER
@@ -130,9 +146,7 @@ class AIJValues:
 
     def read(self, A, out: np.ndarray) -> None:
         """``out`` (in the pattern's order, or ``source``'s) = ``A``'s owned rows. Not collective."""
-        if self.nnz != _split_sizes(self.PETSc, A):
-            raise ValueError("the matrix no longer has the pattern it was read with")
-        for b, view in _value_arrays(self.PETSc, self.lib, self._handles, self.nnz):
+        for b, view in self._arrays(A):
             idx = self.parts[b]
             for lo in range(0, idx.size, _GATHER):
                 out[idx[lo:lo + _GATHER]] = view[lo:lo + _GATHER]

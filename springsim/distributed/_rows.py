@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-__all__ = ["FromScalarCSR", "Halo", "RowMerge", "Rows", "ScalarCSR", "fetch_rows", "head", "local_columns",
+__all__ = ["BlockCSR", "FromScalarCSR", "Halo", "RowMerge", "Rows", "ScalarCSR", "fetch_rows", "head", "local_columns",
            "offsets_of", "send_rows", "stack_rows", "take_rows"]
 
 
@@ -266,6 +266,50 @@ class ScalarCSR:
 
     def values(self, rows: Rows) -> np.ndarray:
         return np.ascontiguousarray(rows.bsr.data).reshape(-1)[self.perm]
+
+
+class BlockCSR:
+    """The block CSR of a :class:`Rows`' square blocks with global block columns sorted in every row, for PETSc's
+    ``BAIJ`` matrices: the pattern (``indptr``, ``indices``) once; the values row-major per block in that order
+    (``values``, what ``MatSetValuesBlocked`` takes), and ``perm``: where each entry of PETSc's storage (blocks in the
+    pattern's order, each stored column by column) is in the blocks' flat array, with ``entry_cols``, a global
+    scalar column of each entry's block (which tells PETSc's diagonal part from the off-diagonal one).
+
+    Parameters
+    ----------
+    rows : Rows
+        Square blocks.
+    """
+
+    def __init__(self, rows: Rows):
+        b = rows.bsr
+        R, N = b.blocksize
+        if R != N:
+            raise ValueError(f"BAIJ needs square blocks, got {R} x {N}")
+        lens = np.diff(b.indptr)
+        brow = np.repeat(np.arange(lens.size, dtype=np.int64), lens)
+        g = rows.gids[b.indices]
+        self.order = np.lexsort((g, brow))  # blocks by row, then global column (the rows stay in order)
+        self.indptr, self.indices = b.indptr.astype(np.int64), g[self.order]
+        nnz = self.order.size * R * N
+        self.perm = np.empty(nnz, dtype=_index_type(nnz))
+        r, c = np.arange(R)[None, None, :], np.arange(N)[None, :, None]
+        for k0 in range(0, self.order.size, _CHUNK):  # entry (j, c, r) of the storage <- entry (r, c) of its block
+            ob = self.order[k0:k0 + _CHUNK, None, None]
+            self.perm[k0 * R * N:(k0 + ob.shape[0]) * R * N] = ((ob * R + r) * N + c).ravel()
+        self.entry_cols = np.repeat(self.indices * N, R * N).astype(_index_type(int(rows.gids.max(initial=0) + 1) * N))
+        self._pattern = (b.indptr.copy(), b.indices.copy(), rows.gids.copy(), (R, N))
+        #: the caller's, as :class:`ScalarCSR`'s
+        self.petsc = self.writer = None
+
+    def matches(self, rows: Rows) -> bool:
+        ip, ix, gids, bs = self._pattern
+        b = rows.bsr
+        return (b.blocksize == bs and np.array_equal(b.indptr, ip) and np.array_equal(b.indices, ix)
+                and np.array_equal(rows.gids, gids))
+
+    def values(self, rows: Rows) -> np.ndarray:
+        return np.ascontiguousarray(rows.bsr.data[self.order]).reshape(-1)
 
 
 class FromScalarCSR:

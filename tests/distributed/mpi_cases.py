@@ -254,6 +254,8 @@ def sa_levels(out):
         """The whole PETSc matrix on every rank, dense (small matrices only)."""
         from petsc4py import PETSc as P
         rows, cols = (P.IS().createStride(n, 0, 1, comm=P.COMM_SELF) for n in M.getSize())
+        if M.getType().endswith("baij"):  # (PETSc 3.18's MatCreateSubMatrices on MPIBAIJ refuses these index sets)
+            M = M.convert("aij", P.Mat())  # (a new matrix: without one, convert works in place)
         whole = M.createSubMatrices(rows, cols)[0]
         dense = whole.convert("dense").getDenseArray().copy()
         for obj in (whole, rows, cols):
