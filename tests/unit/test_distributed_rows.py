@@ -121,3 +121,25 @@ def test_take_rows_and_head_select_block_rows():
     for k, r in enumerate([3, 0]):
         np.testing.assert_array_equal(b.indices[pos[sub[k]:sub[k + 1]]], b.indices[b.indptr[r]:b.indptr[r + 1]])
     np.testing.assert_array_equal(_rows.head(b, 2).toarray(), b.toarray()[:4])
+
+
+def test_block_csr_orders_blocks_and_petsc_storage():
+    """BlockCSR: the blocks by row and global column, row-major per block for MatSetValuesBlocked; ``perm`` lists
+    the entries in PETSc's BAIJ storage (each block column by column) and ``entry_cols`` a column of each entry's
+    block."""
+    rng = np.random.default_rng(5)
+    rows, dense = _random_rows(rng, 10, 3, 13, 8, 3, 3)
+    blk = _rows.BlockCSR(rows)
+    vals = blk.values(rows).reshape(-1, 3, 3)
+    flat = rows.bsr.data.reshape(-1)
+    for i in range(10):
+        for p in range(blk.indptr[i], blk.indptr[i + 1]):
+            g = blk.indices[p]
+            np.testing.assert_array_equal(vals[p], dense[3 * i:3 * i + 3, 3 * g:3 * g + 3])
+            # PETSc's storage of block p: column c, then row r
+            np.testing.assert_array_equal(flat[blk.perm[9 * p:9 * p + 9]].reshape(3, 3).T, vals[p])
+            assert np.all(blk.entry_cols[9 * p:9 * p + 9] // 3 == g)
+        assert np.all(np.diff(blk.indices[blk.indptr[i]:blk.indptr[i + 1]]) > 0)
+    assert blk.matches(rows)
+    with pytest.raises(ValueError, match="square blocks"):
+        _rows.BlockCSR(_random_rows(rng, 4, 0, 4, 3, 3, 6)[0])
