@@ -223,10 +223,33 @@ def _index_type(largest: int):
     return np.int32 if largest < 2**31 else np.int64
 
 
-class ScalarCSR:
-    """The scalar CSR of a :class:`Rows`' blocks with global columns sorted in every row, for PETSc: the pattern
-    (``indptr``, ``indices``) once, then the values of a matrix of the same pattern by one gather (``values``;
-    ``perm`` is where each entry is in the blocks' flat array).
+class _SortedPattern:
+    """A :class:`Rows`' pattern with its blocks sorted by row, then global column (``order``: the blocks' positions in
+    that order; ``brow``, ``gid``: each stored block's row and global column), and whether other rows have the same
+    pattern (:meth:`matches`). ``petsc`` and ``writer`` are the caller's: the pattern in PETSc's index type, and how
+    values are written (None: through PETSc's calls)."""
+
+    def __init__(self, rows: Rows):
+        b = rows.bsr
+        lens = np.diff(b.indptr)
+        self.brow = np.repeat(np.arange(lens.size, dtype=np.int64), lens)
+        self.gid = rows.gids[b.indices]
+        self.order = np.lexsort((self.gid, self.brow))  # (the rows stay in order)
+        self._pattern = (b.indptr.copy(), b.indices.copy(), rows.gids.copy(), b.blocksize)
+        self.petsc = self.writer = None
+
+    def matches(self, rows: Rows) -> bool:
+        ip, ix, gids, bs = self._pattern
+        b = rows.bsr
+        return (b.blocksize == bs and np.array_equal(b.indptr, ip) and np.array_equal(b.indices, ix)
+                and np.array_equal(rows.gids, gids))
+
+
+class ScalarCSR(_SortedPattern):
+    """The scalar CSR of a :class:`Rows`' blocks with global columns sorted in every row, for PETSc's ``AIJ``
+    matrices: the pattern (``indptr``, ``indices``) once, then the values of a matrix of the same pattern by one
+    gather (``values``; ``perm`` is where each entry is in the blocks' flat array). A caller with a writer may drop
+    ``indptr``, ``indices``, ``perm`` and ``petsc`` (:meth:`values` needs ``perm``).
 
     Parameters
     ----------
@@ -234,15 +257,13 @@ class ScalarCSR:
     """
 
     def __init__(self, rows: Rows):
+        super().__init__(rows)
         b = rows.bsr
         R, N = b.blocksize
-        lens = np.diff(b.indptr)
-        brow = np.repeat(np.arange(lens.size, dtype=np.int64), lens)
-        g = rows.gids[b.indices]
-        order = np.lexsort((g, brow))  # blocks by row, then global column (the rows stay in order)
+        order, brow, g = self.order, self.brow, self.gid
         rank = np.arange(order.size, dtype=np.int64) - b.indptr[brow]  # each sorted block's place in its row
         # scalar row I R + a holds its row's blocks' N columns in turn
-        self.indptr = np.concatenate([[0], np.cumsum(np.repeat(lens * N, R))]).astype(np.int64)
+        self.indptr = np.concatenate([[0], np.cumsum(np.repeat(np.diff(b.indptr) * N, R))]).astype(np.int64)
         nnz = int(self.indptr[-1])
         self.perm = np.empty(nnz, dtype=_index_type(nnz))
         self.indices = np.empty(nnz, dtype=_index_type(int(rows.gids.max(initial=0) + 1) * N))
@@ -253,22 +274,13 @@ class ScalarCSR:
             dest = (self.indptr[orow * R + a] + orank * N + c).ravel()
             self.perm[dest] = ((ob * R + a) * N + c).ravel()
             self.indices[dest] = (g[order[k], None, None] * N + c + 0 * a).ravel()
-        self._pattern = (b.indptr.copy(), b.indices.copy(), rows.gids.copy(), (R, N))
-        #: the caller's: the pattern in PETSc's index type, and how values are written (None: ``MatSetValuesCSR``);
-        #: a caller with a writer may drop ``indptr``, ``indices``, ``perm`` and ``petsc`` (:meth:`values` needs ``perm``)
-        self.petsc = self.writer = None
-
-    def matches(self, rows: Rows) -> bool:
-        ip, ix, gids, bs = self._pattern
-        b = rows.bsr
-        return (b.blocksize == bs and np.array_equal(b.indptr, ip) and np.array_equal(b.indices, ix)
-                and np.array_equal(rows.gids, gids))
+        self.brow = self.gid = self.order = None
 
     def values(self, rows: Rows) -> np.ndarray:
         return np.ascontiguousarray(rows.bsr.data).reshape(-1)[self.perm]
 
 
-class BlockCSR:
+class BlockCSR(_SortedPattern):
     """The block CSR of a :class:`Rows`' square blocks with global block columns sorted in every row, for PETSc's
     ``BAIJ`` matrices: the pattern (``indptr``, ``indices``) once; the values row-major per block in that order
     (``values``, what ``MatSetValuesBlocked`` takes), and ``perm``: where each entry of PETSc's storage (blocks in the
@@ -282,15 +294,12 @@ class BlockCSR:
     """
 
     def __init__(self, rows: Rows):
-        b = rows.bsr
-        R, N = b.blocksize
+        R, N = rows.bsr.blocksize
         if R != N:
             raise ValueError(f"BAIJ needs square blocks, got {R} x {N}")
-        lens = np.diff(b.indptr)
-        brow = np.repeat(np.arange(lens.size, dtype=np.int64), lens)
-        g = rows.gids[b.indices]
-        self.order = np.lexsort((g, brow))  # blocks by row, then global column (the rows stay in order)
-        self.indptr, self.indices = b.indptr.astype(np.int64), g[self.order]
+        super().__init__(rows)
+        self.indptr, self.indices = rows.bsr.indptr.astype(np.int64), self.gid[self.order]
+        self.brow = self.gid = None
         nnz = self.order.size * R * N
         self.perm = np.empty(nnz, dtype=_index_type(nnz))
         r, c = np.arange(R)[None, None, :], np.arange(N)[None, :, None]
@@ -298,15 +307,6 @@ class BlockCSR:
             ob = self.order[k0:k0 + _CHUNK, None, None]
             self.perm[k0 * R * N:(k0 + ob.shape[0]) * R * N] = ((ob * R + r) * N + c).ravel()
         self.entry_cols = np.repeat(self.indices * N, R * N).astype(_index_type(int(rows.gids.max(initial=0) + 1) * N))
-        self._pattern = (b.indptr.copy(), b.indices.copy(), rows.gids.copy(), (R, N))
-        #: the caller's, as :class:`ScalarCSR`'s
-        self.petsc = self.writer = None
-
-    def matches(self, rows: Rows) -> bool:
-        ip, ix, gids, bs = self._pattern
-        b = rows.bsr
-        return (b.blocksize == bs and np.array_equal(b.indptr, ip) and np.array_equal(b.indices, ix)
-                and np.array_equal(rows.gids, gids))
 
     def values(self, rows: Rows) -> np.ndarray:
         return np.ascontiguousarray(rows.bsr.data[self.order]).reshape(-1)
