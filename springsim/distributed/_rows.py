@@ -351,7 +351,9 @@ class FromScalarCSR:
         self.indices, self.gids = local_columns(ucol, lo, hi)
         self.indptr = np.concatenate([[0], np.cumsum(np.concatenate(counts) if counts else [])]).astype(np.int64)
         self.n_own, self.bs, self.nblocks = hi - lo, bs, done
-        self.reader = None  #: the caller's: reads the values from the matrix (AIJValues)
+        #: the caller's: the matrix the pattern came from (its handle), and what reads its values from its arrays
+        #: (:class:`springsim.distributed._aij.AIJValues`; None: ``getValuesCSR``)
+        self.matrix = self.reader = None
 
     def __call__(self, A) -> Rows:
         """The owned rows of the PETSc matrix ``A`` (the one this pattern came from) with its current values (through

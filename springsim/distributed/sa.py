@@ -101,17 +101,17 @@ class _Level:
     ``aggregates`` (node by aggregate), ``ritz`` (the top Ritz vector of ``D^-1 A``) and ``dead`` (owned coarse DOFs
     whose prolongator column is zero, or None); ``Pext`` the prolongator's owned and ghost rows over one local
     numbering of the coarse nodes, ``R`` the transpose of its owned rows; ``plans`` the products' kept patterns,
-    ``merge`` the sum of the coarse rows, ``csrP`` and ``csrA`` the scalar patterns given to PETSc, ``extract``
-    (finest level) the conversion of PETSc's rows to blocks.
+    ``merge`` the sum of the coarse rows, ``csrP`` and ``csrA`` the patterns given to PETSc, ``coarse_off`` the
+    coarse nodes' ownership offsets, ``extract`` (finest level) the conversion of PETSc's rows to blocks.
     """
 
     __slots__ = ("A", "P", "rows", "halo", "aggregates", "ritz", "dead", "Pext", "R", "plans", "merge", "csrP",
-                 "csrA", "extract", "owned")
+                 "csrA", "extract", "coarse_off", "owned")
 
     def __init__(self, A, owned: bool):
         self.A, self.owned = A, owned
         self.P = self.rows = self.halo = self.aggregates = self.ritz = self.dead = None
-        self.Pext = self.R = self.merge = self.csrP = self.csrA = self.extract = None
+        self.Pext = self.R = self.merge = self.csrP = self.csrA = self.extract = self.coarse_off = None
         self.plans = {}
 
     def destroy(self, operator: bool = True) -> None:
@@ -286,13 +286,13 @@ class SmoothedAggregation:
                                        (n_nodes * bs, (c_hi - c_lo) * Bk.shape[1]), (bs, Bk.shape[1]))
             lv.dead = dead if mpi.allreduce(int(dead.size)) else None
             coarse = old[li + 1] if li + 1 < len(old) else _Level(None, owned=True)
-            self._coarse_operator(lv, coarse, (c_lo, c_hi), coarse_off)
+            lv.coarse_off = coarse_off
+            self._coarse_operator(lv, coarse)
             levels.append(coarse)
             Bk = Bc
         for lv in old[len(levels):]:
             lv.destroy()
-        for lv in levels:  # the operators' rows are rebuilt from the finest one's next time (galerkin, build)
-            lv.rows = None
+        levels[-1].rows = None  # (the others' went once used: rebuilt from the finest level's next time)
         levels[-1].destroy(operator=False)  # the coarsest level has no prolongator
         levels[-1].aggregates = levels[-1].ritz = None
         self.levels = levels
@@ -306,22 +306,19 @@ class SmoothedAggregation:
             levels = self.levels
             if len(levels) > 1:
                 self._finest_rows(levels[0], levels[0].A, levels[0].extract.bs)
-            mpi, r = self.mpi, self.mpi.Get_rank()
             for lv, coarse in zip(levels[:-1], levels[1:]):
-                off = _rows.offsets_of(mpi, lv.Pext.n_own)
-                self._coarse_operator(lv, coarse, (int(off[r]), int(off[r + 1])), off)
-            for lv in levels:
-                lv.rows = None
+                self._coarse_operator(lv, coarse)
+            levels[-1].rows = None
         finally:
             self.event.end()
 
-    def _coarse_operator(self, lv: _Level, coarse: _Level, own: tuple, coarse_off: np.ndarray) -> None:
+    def _coarse_operator(self, lv: _Level, coarse: _Level) -> None:
         """``coarse.A = P^T (A P)`` of ``lv``: each rank multiplies its rows (``R (A P_ext)``, the compiled block
         kernels with kept patterns), sends the rows of other ranks' coarse nodes to them and sums what it receives
         for its own; coarse DOFs whose prolongator column is zero get a unit diagonal (a decoupled row the coarse
         correction leaves at zero)."""
-        mpi = self.mpi
-        c_lo, c_hi = own
+        mpi, coarse_off = self.mpi, lv.coarse_off
+        c_lo, c_hi = (int(c) for c in coarse_off[mpi.Get_rank():mpi.Get_rank() + 2])
         nc = c_hi - c_lo
         AP, lv.plans["AP"] = bsr_matmat(lv.rows.bsr, lv.Pext.bsr, self.kernels, lv.plans.get("AP"))
         C, lv.plans["RAP"] = bsr_matmat(lv.R, AP, self.kernels, lv.plans.get("RAP"), symmetric=mpi.Get_size() == 1)
