@@ -341,6 +341,28 @@ def sa_levels(out):
     finally:
         aij.AIJValues = kept
 
+    # a rank without aggregates: a cloth on the first rows, unconnected free particles after it (their rank's
+    # diagonal block is the mass matrix: nothing to aggregate), solved after a build and after a Galerkin update
+    b = ModelBuilder(gravity=-9.81)
+    b.add_cloth_grid(nx=12, ny=12, size=(1.0, 1.0), total_mass=1.0, stiffness=1e4, pin="top")
+    b.add_particles(np.column_stack([np.linspace(2.0, 3.0, 150), np.zeros(150), np.zeros(150)]), mass=0.01)
+    mixed = b.finalize()
+    s = DistributedSystem(mixed, rtol=1e-8)
+    q, v = s.local_state(mixed.particle_q + 0.001, mixed.particle_qd)
+    rhs = np.cos(np.arange(3 * s.part.n_own) + s.rank)
+    runs = []
+    for a in (h * h, 4 * h * h):  # other coefficients: the kept levels' coarse operators are recomputed
+        A = s.assemble(q, v, a, np.sqrt(a), "spd")
+        res = s.solve(A, rhs)
+        r = rhs - A @ res.x
+        runs.append(dict(ok=res.converged, method=res.method, its=res.iterations,
+                         residual=float(np.sqrt(s.sum(r @ r) / s.sum(rhs @ rhs)))))
+    report["empty_rank"] = dict(runs=runs, coarse_updates=s.pc_stats["coarse_updates"],
+                                fewest_aggregates=int(s.mpi.allreduce(s._sa.levels[0].aggregates.shape[1],
+                                                                      op=s.MPI.MIN)),
+                                levels=len(s._sa.levels))
+    s.destroy()
+
     # a straight rope: every aggregate collinear, the rotation about the rope is not representable
     b = ModelBuilder(gravity=-9.81)
     n = 300

@@ -426,8 +426,8 @@ def test_smoothed_aggregation_levels(ranks, tmp_path):
     (same sizes, the same coarse operator to round-off), rank-local aggregates on several; every coarse operator is
     ``P^T A P`` of the gathered matrices (the rank-by-rank products, the rows sent to their owners and summed), after
     a build and after the Galerkin recomputation with kept prolongators; the values go straight into and out of
-    PETSc's arrays, and through PETSc's calls where that is refused, with the same hierarchy; CG solves a perturbed
-    cloth and a straight rope (zero prolongator columns, given unit diagonals) to the tolerance; an indefinite
+    PETSc's arrays, and through PETSc's calls where that is refused, with the same hierarchy; a rank without
+    aggregates takes part in the products; CG solves a perturbed cloth and a straight rope (zero prolongator columns, given unit diagonals) to the tolerance; an indefinite
     matrix is never a silent wrong answer."""
     import json
 
@@ -448,6 +448,11 @@ def test_smoothed_aggregation_levels(ranks, tmp_path):
     assert pc["ok"] and pc["levels"] == r["cloth_levels"] and pc["its"] == r["cloth"]["its"]
     assert not pc["read"] and not pc["write"]
     assert pc["diff"] < 1e-12 and pc["build_diff"] < 1e-12 and pc["galerkin_diff"] < 1e-12
+    er = r["empty_rank"]  # a rank without aggregates (on several ranks): its rows take part all the same
+    assert er["levels"] >= 2 and er["coarse_updates"] >= 1
+    assert all(x["ok"] and x["method"] == "petsc cg+mg" and x["residual"] <= 1.01e-8 for x in er["runs"])
+    if ranks > 1:
+        assert er["fewest_aggregates"] == 0
     ind = r["indefinite"]
     assert (ind["ok"] and ind["residual"] <= 1.01e-8) or (not ind["ok"] and ind["failure"])
 
