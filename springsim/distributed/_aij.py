@@ -238,11 +238,14 @@ class DirectInsertion:
         self.ghost = (indptr[n_own:] - indptr[n_own]).astype(PETSc.IntType), \
             indices[nb:].astype(PETSc.IntType), np.arange(n_own, indptr.size - 1, dtype=PETSc.IntType)
         self.ghost_offset = bs * bs * nb
-        self._handles = _seq_blocks(PETSc, lib, A)
+        _seq_blocks(PETSc, lib, A)  # (raises where the blocks cannot be had)
 
-    def arrays(self):
-        """Yield ``(block index, writable view of its values)`` for each block; the arrays are restored after."""
-        yield from _value_arrays(self.PETSc, self.lib, self._handles, self.nnz)
+    def arrays(self, A):
+        """Yield ``(block index, writable view of its values)`` for each block of ``A`` (asked for each time, as
+        :class:`AIJValues` does); the arrays are restored after."""
+        if _split_sizes(self.PETSc, A) != self.nnz:
+            raise ValueError("the matrix no longer has the pattern this insertion was made for")
+        yield from _value_arrays(self.PETSc, self.lib, _seq_blocks(self.PETSc, self.lib, A), self.nnz)
 
     def insert(self, A, data: np.ndarray) -> None:
         """``A`` = the local matrix whose BSR values are ``data`` (summed over the ranks' ghost rows). Collective
@@ -257,7 +260,7 @@ class DirectInsertion:
         """
         flat = data.reshape(-1)
         A.zeroEntries()  # also invalidates the blocks' cached inverse diagonals (SOR's)
-        for b, view in self.arrays():
+        for b, view in self.arrays(A):
             np.take(flat, self.gather[b], out=view, mode="clip")  # "raise" would buffer the output
             view[self.unfed[b]] = 0.0
         ip, jj, rows = self.ghost
