@@ -1,4 +1,5 @@
-"""Direct insertion of the local block matrix into a PETSc AIJ matrix's value arrays.
+"""Direct access to a PETSc AIJ (or BAIJ) matrix's value arrays: the local block matrix's insertion
+(:class:`DirectInsertion`) and the owned rows of a known pattern (:class:`AIJValues`).
 
 ``MatSetValuesBlockedLocalCSR`` finds every scalar entry's place in its row by a search, one 3x3 block at a
 time, and sends the ghost rows through PETSc's stash; on the benchmark cloth (n = 256, one rank) that insertion
@@ -23,7 +24,7 @@ import ctypes
 
 import numpy as np
 
-__all__ = ["AIJValues", "DirectInsertion", "petsc_library"]
+__all__ = ["AIJValues", "DirectInsertion", "petsc_library", "reproduces"]
 
 #: Blocks per chunk while the gather indices are built (the temporaries stay at a few MB).
 _CHUNK = 1 << 16
@@ -73,6 +74,34 @@ def _value_arrays(PETSc, lib, handles, nnz, blocked=False):
             err = restore(h, ctypes.byref(ptr))
             if err:
                 raise PETSc.Error(err)
+
+
+def _checked_arrays(PETSc, lib, A, nnz, blocked=False):
+    """:func:`_value_arrays` of ``A``'s blocks, asked for each time (PETSc may replace a parallel matrix's blocks, as
+    ``MATMPIBAIJ`` does in a redundant coarse solve's set-up); ValueError when their sizes are not ``nnz``."""
+    if _split_sizes(PETSc, A) != nnz:
+        raise ValueError("the matrix no longer has the pattern its direct access was made for")
+    return _value_arrays(PETSc, lib, _seq_blocks(PETSc, lib, A), nnz, blocked)
+
+
+def reproduces(PETSc, A, write, mpi) -> bool:
+    """Whether ``write()`` leaves in ``A`` the matrix it holds now, judged by their products with a random vector
+    (to 1e-12 of ``|A|_inf |x|_inf``: the order in which other ranks' rows are added is not fixed, while an entry in
+    a wrong place changes the product by its own size), on every rank; ``A`` holds ``write``'s result after.
+    Collective."""
+    from mpi4py import MPI
+
+    x, y = A.createVecs()
+    x.array[:] = np.random.default_rng(1 + mpi.Get_rank()).uniform(0.5, 1.5, x.getLocalSize())
+    A.mult(x, y)
+    ref = y.array.copy()
+    scale = A.norm(PETSc.NormType.INFINITY) * 1.5
+    write()
+    A.mult(x, y)
+    ok = bool(np.all(np.abs(y.array - ref) <= 1e-12 * scale))
+    x.destroy()
+    y.destroy()
+    return bool(mpi.allreduce(int(ok), op=MPI.MIN) == 1)
 
 
 def _split_sizes(PETSc, A) -> tuple:
@@ -126,18 +155,10 @@ class AIJValues:
             raise ValueError(f"the pattern's split {self.nnz} is not the matrix's {_split_sizes(PETSc, A)}")
         _seq_blocks(PETSc, lib, A)  # (raises where the blocks cannot be had)
 
-    def _arrays(self, A):
-        """The value arrays of ``A``'s blocks (asked for each time: PETSc may replace a parallel matrix's blocks,
-        as ``MATMPIBAIJ`` does in a redundant coarse solve's set-up); ValueError when their sizes are not the
-        pattern's."""
-        if self.nnz != _split_sizes(self.PETSc, A):
-            raise ValueError("the matrix no longer has the pattern this access was made for")
-        return _value_arrays(self.PETSc, self.lib, _seq_blocks(self.PETSc, self.lib, A), self.nnz, self.blocked)
-
     def insert(self, A, values: np.ndarray) -> None:
         """``A``'s owned rows = ``values`` (in the pattern's order, or ``source``'s). Collective (the assembly)."""
         A.zeroEntries()  # also invalidates the blocks' cached inverse diagonals (SOR's)
-        for b, view in self._arrays(A):
+        for b, view in _checked_arrays(self.PETSc, self.lib, A, self.nnz, self.blocked):
             idx = self.parts[b]
             for lo in range(0, idx.size, _GATHER):  # numpy converts each chunk's indices to intp, not all of them
                 hi = lo + _GATHER
@@ -146,7 +167,7 @@ class AIJValues:
 
     def read(self, A, out: np.ndarray) -> None:
         """``out`` (in the pattern's order, or ``source``'s) = ``A``'s owned rows. Not collective."""
-        for b, view in self._arrays(A):
+        for b, view in _checked_arrays(self.PETSc, self.lib, A, self.nnz, self.blocked):
             idx = self.parts[b]
             for lo in range(0, idx.size, _GATHER):
                 out[idx[lo:lo + _GATHER]] = view[lo:lo + _GATHER]
@@ -240,13 +261,6 @@ class DirectInsertion:
         self.ghost_offset = bs * bs * nb
         _seq_blocks(PETSc, lib, A)  # (raises where the blocks cannot be had)
 
-    def arrays(self, A):
-        """Yield ``(block index, writable view of its values)`` for each block of ``A`` (asked for each time, as
-        :class:`AIJValues` does); the arrays are restored after."""
-        if _split_sizes(self.PETSc, A) != self.nnz:
-            raise ValueError("the matrix no longer has the pattern this insertion was made for")
-        yield from _value_arrays(self.PETSc, self.lib, _seq_blocks(self.PETSc, self.lib, A), self.nnz)
-
     def insert(self, A, data: np.ndarray) -> None:
         """``A`` = the local matrix whose BSR values are ``data`` (summed over the ranks' ghost rows). Collective
         (the assembly sends the ghost rows to their owners).
@@ -260,7 +274,7 @@ class DirectInsertion:
         """
         flat = data.reshape(-1)
         A.zeroEntries()  # also invalidates the blocks' cached inverse diagonals (SOR's)
-        for b, view in self.arrays(A):
+        for b, view in _checked_arrays(self.PETSc, self.lib, A, self.nnz):
             np.take(flat, self.gather[b], out=view, mode="clip")  # "raise" would buffer the output
             view[self.unfed[b]] = 0.0
         ip, jj, rows = self.ghost
@@ -270,10 +284,8 @@ class DirectInsertion:
         A.assemble()
 
     def matches(self, A, data: np.ndarray, mpi) -> bool:
-        """Whether :meth:`insert` gives the matrix PETSc's insertion left in ``A`` for the same ``data``, judged by
-        their products with a random vector (to 1e-12 of ``|A|_inf |x|_inf``: the order in which other ranks' ghost
-        rows are added is not fixed, while an entry in a wrong place changes the product by its own size), on every
-        rank; ``A`` holds :meth:`insert`'s result after. Collective.
+        """Whether :meth:`insert` gives the matrix PETSc's insertion left in ``A`` for the same ``data``
+        (:func:`reproduces`); ``A`` holds :meth:`insert`'s result after. Collective.
 
         Parameters
         ----------
@@ -283,16 +295,4 @@ class DirectInsertion:
             The values it was assembled from.
         mpi : mpi4py communicator
         """
-        from mpi4py import MPI
-
-        x, y = A.createVecs()
-        x.array[:] = np.random.default_rng(1 + mpi.Get_rank()).uniform(0.5, 1.5, x.getLocalSize())
-        A.mult(x, y)
-        ref = y.array.copy()
-        scale = A.norm(self.PETSc.NormType.INFINITY) * 1.5
-        self.insert(A, data)
-        A.mult(x, y)
-        ok = bool(np.all(np.abs(y.array - ref) <= 1e-12 * scale))
-        x.destroy()
-        y.destroy()
-        return bool(mpi.allreduce(int(ok), op=MPI.MIN) == 1)
+        return reproduces(self.PETSc, A, lambda: self.insert(A, data), mpi)

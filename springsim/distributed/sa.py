@@ -419,7 +419,7 @@ class SmoothedAggregation:
         ``|M|_inf |x|_inf``; ``M`` then holds its result), else None. Collective."""
         from mpi4py import MPI
 
-        from ._aij import AIJValues, petsc_library
+        from ._aij import AIJValues, petsc_library, reproduces
 
         try:
             cols = csr.entry_cols if isinstance(csr, _rows.BlockCSR) else csr.indices
@@ -428,17 +428,8 @@ class SmoothedAggregation:
             writer = None
         if not self.mpi.allreduce(int(writer is not None), op=MPI.MIN):
             return None
-        x, y = M.createVecs()
-        x.array[:] = np.random.default_rng(1 + self.mpi.Get_rank()).uniform(0.5, 1.5, x.getLocalSize())
-        M.mult(x, y)
-        ref = y.array.copy()
-        scale = M.norm(self.PETSc.NormType.INFINITY) * 1.5
-        writer.insert(M, np.ascontiguousarray(rows.bsr.data).reshape(-1))
-        M.mult(x, y)
-        ok = bool(np.all(np.abs(y.array - ref) <= 1e-12 * scale))
-        x.destroy()
-        y.destroy()
-        return writer if self.mpi.allreduce(int(ok), op=MPI.MIN) else None
+        values = np.ascontiguousarray(rows.bsr.data).reshape(-1)
+        return writer if reproduces(self.PETSc, M, lambda: writer.insert(M, values), self.mpi) else None
 
     def _lanczos(self, A, D: np.ndarray, Dinv: np.ndarray, start):
         """``(rho, y)``: the largest Ritz value of ``D^-1 A`` in the ``D`` inner product (``D`` and ``D^-1`` the
