@@ -32,4 +32,5 @@ BENCHMARKS = {
     "stiff-regime": "stiff_regime",
     "stiff-convergence": "stiff_convergence",
     "peer-newton": "peer_newton",
+    "scene-read": "scene_read",
 }

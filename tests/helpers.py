@@ -14,7 +14,7 @@ from springsim import ModelBuilder
 from springsim.analysis.reference import reference_trajectory
 from springsim.forces import eval_forces
 
-__all__ = ["PENDULUM_YAML", "random_scene", "internal", "conservative", "two_particle_scene", "damped_chain", "fd_jacobians", "rel_err", "observed_errors",
+__all__ = ["PENDULUM_YAML", "mixed_scene_yaml", "random_scene", "internal", "conservative", "two_particle_scene", "damped_chain", "fd_jacobians", "rel_err", "observed_errors",
            "run_cli", "one_line_error"]
 
 
@@ -27,6 +27,37 @@ particles:
 springs:
   - {particle_ids: [0, 1], stiffness: 100}
 """
+
+
+def mixed_scene_yaml(n: int = 40, seed: int = 3) -> str:
+    """A scene file that uses the format's freedoms: its pair lists before its particles, an alias into a top-level
+    ``x-`` key, ``ke`` for ``stiffness``, rest lengths given and computed, gravitational pairs with and without a
+    softening, drag on some particles, fixed particles given in the items and by a ``pin:`` of indices and a box,
+    a spring between two fixed particles; ``up_axis: y``. Its arrays come from a seeded generator, printed
+    to 4 digits (the same file on every machine)."""
+    rng = np.random.default_rng(seed)
+    lines = ["name: mixed", "x-rest: &v0 [0.0, 0.0, 0.0]", "springs:"]
+    for k in range(int(1.75 * n)):
+        i, j = rng.choice(n, 2, replace=False)
+        rest = "" if k % 3 else f", rest_length: {0.05 + 0.01 * k:.3f}"
+        key = "ke" if k % 5 == 0 else "stiffness"
+        lines.append(f"  - {{particle_ids: [{i}, {j}], {key}: {100 + k}.0, damping: {0.1 * (k % 2):.1f}{rest}}}")
+    lines.append("  - {particle_ids: [0, 1], stiffness: 5.0}")
+    lines.append("solver: {type: implicit_euler, timestep: 0.01, steps: 5, gravity: -3.0, up_axis: y}")
+    lines.append("particles:")
+    for i in range(n):
+        fixed = ", fixed: true" if i in (0, 1) else ""
+        drag = f", drag: {0.01 * (i % 3):.2f}" if i % 4 == 0 else ""
+        vel = "vel: *v0" if i % 2 else f"vel: [{rng.normal():.3f}, 0.1, 0.0]"
+        pos = ", ".join(f"{x:.4f}" for x in rng.normal(size=3))
+        lines.append(f"  - {{pos: [{pos}], {vel}, mass: {0.5 + 0.1 * (i % 5):.2f}{drag}{fixed}}}")
+    lines.append("gravitational:")
+    for k in range(max(n // 3, 2)):
+        i, j = rng.choice(n, 2, replace=False)
+        soft = "" if k % 2 else ", softening: 0.05"
+        lines.append(f"  - {{particle_ids: [{i}, {j}], G: 0.5{soft}}}")
+    lines.append(f"pin: [7, {{box: [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]}}, {n - 10}]")
+    return "\n".join(lines) + "\n"
 
 
 def _spring_data(rng, b, pos, is_fixed, o):

@@ -8,6 +8,8 @@ only this package imports; the rest of springsim works without them.
   plain numpy.
 * :mod:`~springsim.distributed.scene`: a rank's share of a scene built without the whole model (a cloth grid
   generated per rank, a model scattered from the root); plain numpy but the scatter.
+* :mod:`~springsim.distributed.scene_stream`: a rank's share of a scene file read in pieces on the root
+  (:func:`streamed_part`): no rank holds the whole model.
 * :mod:`~springsim.distributed.system`: ghost exchange, forces, the distributed assembly into a PETSc AIJ
   matrix of block size 3, the KSP solve (CG + GAMG with the rigid-body near-null space by default).
 * :mod:`~springsim.distributed.driver`: :func:`make_distributed` (an integrator of
@@ -20,10 +22,12 @@ From the command line: ``mpiexec -n 4 springsim run scene.yaml --backend petsc``
 from ._petsc import BackendUnavailable, env_rank, env_size, import_petsc, petsc_available
 from .partition import LocalPart, contiguous_offsets, partition
 from .scene import ScenePart, benchmark_cloth_part, cloth_grid_part, generated_part, model_part, scatter_model
+from .scene_stream import streamed_part
 
 __all__ = ["BackendUnavailable", "import_petsc", "petsc_available", "env_rank", "env_size", "LocalPart",
            "contiguous_offsets", "partition", "simulate_distributed", "make_distributed", "DistributedSystem",
-           "ScenePart", "benchmark_cloth_part", "cloth_grid_part", "generated_part", "model_part", "scatter_model"]
+           "ScenePart", "benchmark_cloth_part", "cloth_grid_part", "generated_part", "model_part", "scatter_model",
+           "streamed_part"]
 
 
 def __getattr__(name):  # the PETSc-backed parts import petsc4py only when used

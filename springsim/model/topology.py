@@ -156,7 +156,7 @@ def cloth_pin_mask(nx: int, ny: int, pin="edge", *, positions=None, path: str = 
 
 
 def pin_mask(pin, count: int, *, positions=None, grid: tuple[int, int] | None = None,
-             path: str = "pin") -> np.ndarray:
+             path: str = "pin", rows: tuple[int, int] | None = None) -> np.ndarray:
     """Boolean mask (count,) of the particles a pin specification selects (module docstring).
 
     Parameters
@@ -171,33 +171,60 @@ def pin_mask(pin, count: int, *, positions=None, grid: tuple[int, int] | None = 
         ``(nx, ny)`` when the particles are a cloth grid: enables names and ``{i: , j: }``.
     path
         Field path used in error messages (``cloth.pin``, ``pin``).
+    rows
+        ``(lo, hi)``: the mask of particles ``lo .. hi-1`` only, ``positions`` being theirs (hi - lo, 3): a
+        distributed reader's block of a scene (indices still refer to all ``count`` particles; not with ``grid``).
+        A box that holds none of these particles is then not an error (:func:`pin_boxes` for the caller's check).
 
     Returns
     -------
-    ndarray of bool, shape (count,)
+    ndarray of bool, shape (count,), or (hi - lo,) with ``rows``
 
     Raises
     ------
     SceneError
         One line naming the offending item (``cloth.pin[2]: ...``).
     """
-    mask = np.zeros(count, dtype=bool)
+    if rows is not None and grid is not None:
+        raise ValueError("pin_mask: rows with a grid")
+    lo, hi = (0, count) if rows is None else rows
+    mask = np.zeros(hi - lo, dtype=bool)
     if pin is None:
         return mask
     if isinstance(pin, (np.ndarray, range)):
-        return mask | index_mask(path, pin, count)
+        return mask | index_mask(path, pin, count)[lo:hi]
     if isinstance(pin, (list, tuple)):
         if not pin:
             return mask
         if set(map(type, pin)) <= {int}:  # the common bulk form: no Python loop over the indices
-            return mask | index_mask(path, pin, count)
+            return mask | index_mask(path, pin, count)[lo:hi]
         for k, item in enumerate(pin):
             if isinstance(item, (list, tuple, np.ndarray, range)):
                 raise SceneTypeError(f"{path}[{k}]", f"must be {_PIN_FORMS}, got {_what(item)} {_show(item)}")
-            _add_pin(mask, item, f"{path}[{k}]", positions, grid)
+            _add_pin(mask, item, f"{path}[{k}]", positions, grid, count, lo)
         return mask
-    _add_pin(mask, pin, path, positions, grid)
+    _add_pin(mask, pin, path, positions, grid, count, lo)
     return mask
+
+
+def pin_boxes(pin, path: str = "pin") -> list[tuple[str, np.ndarray]]:
+    """The boxes of a valid pin specification (:func:`pin_mask` checked it): ``(path, corners (2, 3))`` each.
+
+    Parameters
+    ----------
+    pin
+        The specification.
+    path
+        Its field path.
+
+    Returns
+    -------
+    list of (str, ndarray)
+        The box items' paths (``pin[2].box``) and corners ``[[xmin, ymin, zmin], [xmax, ymax, zmax]]``.
+    """
+    items = list(enumerate(pin)) if isinstance(pin, (list, tuple)) else [(None, pin)]
+    return [(f"{path}{'' if k is None else f'[{k}]'}.box", np.array(item["box"], dtype=np.float64))
+            for k, item in items if isinstance(item, dict) and set(item) == {"box"}]
 
 
 def index_mask(path: str, indices, count: int) -> np.ndarray:
@@ -275,8 +302,9 @@ def index_mask(path: str, indices, count: int) -> np.ndarray:
     return mask
 
 
-def _add_pin(mask: np.ndarray, item, path: str, positions, grid) -> None:
-    """Set in ``mask`` the particles of one pin item: a name, an index or a mapping."""
+def _add_pin(mask: np.ndarray, item, path: str, positions, grid, count: int, lo: int = 0) -> None:
+    """Set in ``mask`` (particles ``lo ..`` of ``count``) the particles of one pin item: a name, an index or a
+    mapping."""
     if isinstance(item, str):
         if grid is None:
             raise SceneError(path, f"edge and corner names such as {_show(item)} apply to a cloth block; "
@@ -289,11 +317,11 @@ def _add_pin(mask: np.ndarray, item, path: str, positions, grid) -> None:
         for rows, cols in sel:
             m[rows, cols] = True
     elif isinstance(item, (int, np.integer)) and not isinstance(item, (bool, np.bool_)):
-        mask |= index_mask(path, item, mask.shape[0])
+        mask |= index_mask(path, item, count)[lo:lo + mask.size]
     elif isinstance(item, dict):
         keys = set(item)
         if keys == {"box"}:
-            mask |= _box_mask(f"{path}.box", item["box"], positions)
+            mask |= _box_mask(f"{path}.box", item["box"], positions, required=lo == 0 and mask.size == count)
         elif keys == {"i", "j"}:
             if grid is None:
                 raise SceneError(path, "{i: , j: } applies to a cloth block; here give particle indices or a "
@@ -321,8 +349,9 @@ def _is_number(x) -> bool:
     return isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(x, (bool, np.bool_))
 
 
-def _box_mask(path: str, box, positions) -> np.ndarray:
-    """Particles whose position lies in the closed box ``[[xmin, ymin, zmin], [xmax, ymax, zmax]]``."""
+def _box_mask(path: str, box, positions, required: bool = True) -> np.ndarray:
+    """Particles whose position lies in the closed box ``[[xmin, ymin, zmin], [xmax, ymax, zmax]]``; an error if
+    there is none, when ``required`` (a box over all the particles)."""
     form = "must be [[xmin, ymin, zmin], [xmax, ymax, zmax]]"
     if isinstance(box, np.ndarray):
         if box.dtype.kind not in "iuf" or box.shape != (2, 3):
@@ -355,7 +384,7 @@ def _box_mask(path: str, box, positions) -> np.ndarray:
         raise SceneError(path, "a box needs the particle positions")
     q = np.asarray(positions, dtype=np.float64)
     inside = np.all((q >= lo) & (q <= hi), axis=1)
-    if not inside.any():
+    if required and not inside.any():
         span = "" if not q.shape[0] else (f" (the particles span [{', '.join(f'{x:g}' for x in q.min(axis=0))}] "
                                           f"to [{', '.join(f'{x:g}' for x in q.max(axis=0))}])")
         raise SceneError(path, f"contains no particle{span}")

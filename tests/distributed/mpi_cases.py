@@ -531,6 +531,40 @@ def weighted_partition(out):
             json.dump(report, fh)
     return 0
 
+def read_in_pieces(path, chunk):
+    """A scene file read in chunks of ``chunk`` items on rank 0 and built in parts
+    (springsim.distributed.streamed_part): every rank's part, its fixed particles and the whole model's fingerprint
+    are those of the model a whole load builds (model_part), to the last bit."""
+    import springsim.scene.yaml_stream as ys
+    from springsim.distributed import import_petsc, model_part, streamed_part
+    from springsim.scene import load_scene
+
+    _, MPI = import_petsc()
+    comm = MPI.COMM_WORLD
+    ys.CHUNK_ITEMS = int(chunk)
+    got = streamed_part(comm.bcast(load_scene(path, build=False) if comm.rank == 0 else None, root=0), comm)
+    whole = load_scene(path).model
+    ref = model_part(whole, comm.size, comm.rank)
+    assert got.model_fingerprint == whole.fingerprint()
+    for k in ("local_particles", "local_to_free", "offsets"):
+        assert np.array_equal(getattr(got.part, k), getattr(ref.part, k)), k
+    assert (got.part.n_own, got.part.n_ghost) == (ref.part.n_own, ref.part.n_ghost)
+    for a, b in ((got.part.pair_model, ref.part.pair_model), (got.part.particle_model, ref.part.particle_model),
+                 (got.fixed_model, ref.fixed_model)):
+        for k in ("particle_q", "particle_qd", "particle_mass", "particle_radius", "particle_fixed"):
+            assert np.array_equal(getattr(a, k), getattr(b, k), equal_nan=True), k
+        assert list(a.terms) == list(b.terms)
+        for t in a.terms:
+            assert list(a.terms[t]) == list(b.terms[t])
+            for k in a.terms[t]:
+                assert np.array_equal(a.terms[t][k], b.terms[t][k], equal_nan=True), (t, k)
+    assert np.array_equal(got.fixed_ids, ref.fixed_ids)
+    for k in ("particle_count", "free_count", "gravity", "up_axis", "pair_epsilon", "damped", "metadata",
+              "pair_counts"):
+        assert getattr(got, k) == getattr(ref, k), k
+    return 0
+
+
 if __name__ == "__main__":
     case, *args = sys.argv[1:]
     sys.exit(globals()[case](*args))

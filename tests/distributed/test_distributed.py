@@ -322,6 +322,51 @@ def test_bad_input_one_message_on_every_rank(tmp_path):
 
 
 @needs_petsc
+@pytest.mark.parametrize("ranks", [2, 3])
+@pytest.mark.parametrize("name, chunk", [("mixed", 3), ("mixed", 1 << 16), ("small_cloth", 7)])
+def test_scene_read_in_pieces_is_the_models_part(name, chunk, ranks, tmp_path):
+    """A scene file with item lists, read on rank 0 in chunks and sent on in pieces (chunks that straddle the ranks'
+    blocks, and one chunk for everything): every rank's part is the whole model's to the last bit (mpi_cases
+    read_in_pieces). One rank: tests/unit/test_scene_stream.py."""
+    from helpers import mixed_scene_yaml
+
+    path = tmp_path / "s.yaml"
+    path.write_text(mixed_scene_yaml() if name == "mixed" else (ROOT / "scenes" / f"{name}.yaml").read_text())
+    mpirun(ranks, "read_in_pieces", str(path), str(chunk))
+
+
+@needs_petsc
+def test_cli_scene_with_lists_is_read_in_pieces(tmp_path):
+    """``mpiexec -n 2 springsim run`` of a scene file with item lists: read on rank 0 in pieces, no rank building the
+    model; the frames are the serial run's and the fingerprint the serial model's; an error that only rank 1's
+    block meets (a computed value's rule, checked where the pair is held) is one line naming the item as a serial
+    run does, exit 2."""
+    from helpers import mixed_scene_yaml
+
+    from springsim.cli import main
+    from springsim.run.driver import Trajectory
+
+    path = tmp_path / "mixed.yaml"
+    path.write_text(mixed_scene_yaml())
+    out = tmp_path / "d.npz"
+    mpirun(2, [sys.executable, "-m", "springsim", "run", str(path), "--backend", "petsc", "--out", str(out), "-q"])
+    assert main(["run", str(path), "--out", str(tmp_path / "s.npz"), "-q"]) == 0
+    d, s = Trajectory.load(out), Trajectory.load(tmp_path / "s.npz")
+    assert d.q.shape == s.q.shape == (6, 40, 3)
+    assert np.abs(d.q - s.q).max() < 1e-6
+    assert d.meta["model_fingerprint"] == s.meta["model_fingerprint"] is not None
+    bad = tmp_path / "bad.yaml"
+    head, _, tail = path.read_text().rpartition("softening: 0.05")
+    bad.write_text(head + "softening: 1.0e-200" + tail)
+    r = mpirun(2, [sys.executable, "-m", "springsim", "run", str(bad), "--backend", "petsc"], check=False)
+    assert r.returncode == 2
+    lines = [x for x in r.stderr.splitlines() if x.startswith("springsim:")]
+    assert len(lines) == 1 and re.fullmatch(rf"springsim: error: {re.escape(str(bad))}: gravitational\[12\]\.softening: "
+                                            r"is too small: .*", lines[0]), lines
+    assert main(["run", str(bad)]) == 2  # the serial message is the same
+
+
+@needs_petsc
 def test_cli_generator_scene_is_generated_per_rank(tmp_path):
     """A YAML scene of one ``benchmark_cloth`` block under ``mpiexec``: rank 0 reads the file without building the
     model and every rank generates its part (the builder's whole-grid method is disabled in the ranks); the frames
@@ -490,6 +535,25 @@ def test_distributed_benchmark_runs(tmp_path):
     for r in rows[1:]:
         assert r["config"].startswith("petsc") and int(r["failed_steps"]) == 0 and float(r["linear_its"]) > 0
         assert float(r["diff_to_serial_m"]) < 1e-6 and float(r["max_rss_mb"]) > 0 and float(r["step_s"]) > 0
+
+
+@needs_petsc
+@pytest.mark.slow
+def test_scene_read_benchmark_runs(tmp_path):
+    """``python -m benchmarks scene-read`` at a tiny size: both ways on 1 and 2 ranks, every rank's fingerprint the
+    serial model's."""
+    import csv
+
+    from benchmarks import scene_read
+
+    _fail()
+    assert scene_read.main(["--n", "6", "--ranks", "1", "2", "--out", str(tmp_path)]) == 0
+    with open(tmp_path / "scene_read.csv", newline="") as fh:
+        reader = csv.DictReader(fh)
+        rows = list(reader)
+    assert reader.fieldnames == scene_read.COLUMNS and len(rows) == 4
+    assert [(r["mode"], r["ranks"]) for r in rows] == [("whole", "1"), ("pieces", "1"), ("whole", "2"), ("pieces", "2")]
+    assert all(r["fingerprint_ok"] == "True" and int(r["particles"]) == 36 and int(r["springs"]) == 60 for r in rows)
 
 
 @needs_petsc
