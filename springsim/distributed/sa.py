@@ -226,9 +226,12 @@ class SmoothedAggregation:
 
     def _reader(self, A, indices, dest):
         """An :class:`~springsim.distributed._aij.AIJValues` reading ``A``'s arrays into blocks (``dest``), or None
-        (``getValuesCSR`` then) where it cannot. Not collective."""
+        (``getValuesCSR`` then) where it cannot: also for a BAIJ matrix, whose arrays hold blocks, not the scalar rows
+        ``indices`` lists. Not collective."""
         from ._aij import AIJValues, petsc_library
 
+        if A.getType().endswith("baij"):
+            return None
         try:
             return AIJValues(self.PETSc, A, indices, petsc_library(), source=dest)
         except (ValueError, OSError, AttributeError, self.PETSc.Error):

@@ -297,6 +297,19 @@ def sa_levels(out):
         report["serial_levels"] = [lv.A.shape[0] for lv in ref]
         report["coarse_diff"] = float(np.abs(whole_dense(levels[1].A) - ref[1].A.toarray()).max()
                                       / np.abs(ref[1].A.toarray()).max())
+    # a BAIJ copy of the matrix: its arrays hold 3 x 3 blocks, not scalar rows; read through getValuesCSR, the same
+    # hierarchy
+    from springsim.distributed.sa import SmoothedAggregation
+    from petsc4py import PETSc as P
+
+    B = s.A.convert("baij", P.Mat())
+    sab = SmoothedAggregation(P, s.comm)
+    sab.build(B, rigid_body_modes(np.asarray(s._positions)))
+    report["baij"] = dict(read=sab.levels[0].extract.reader is not None,
+                          diff=max(float(np.abs(whole_dense(m.A) - f).max() / np.abs(f).max())
+                                   for m, f in zip(sab.levels[1:], fresh)))
+    sab.destroy()
+    B.destroy()
     # galerkin() with new values equals a build with the same prolongators
     A = s.assemble(q, v, 4 * h * h, 2 * h, "spd")
     s._sa.galerkin()

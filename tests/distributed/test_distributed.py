@@ -488,6 +488,7 @@ def test_smoothed_aggregation_levels(ranks, tmp_path):
         assert r["coarse_diff"] < 1e-12
     assert r["build_diff"] < 1e-12 and r["galerkin_diff"] < 1e-12
     assert r["direct"]["read"] and all(r["direct"]["write"])
+    assert not r["baij"]["read"] and r["baij"]["diff"] < 1e-12  # a BAIJ matrix's values read by rows
     assert r["rope"]["dead"] > 0  # collinear aggregates: the rotation about the rope has no column
     pc = r["petsc_calls"]  # no direct access to PETSc's arrays: the same hierarchy and iterations
     assert pc["ok"] and pc["levels"] == r["cloth_levels"] and pc["its"] == r["cloth"]["its"]
