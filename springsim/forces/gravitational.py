@@ -77,7 +77,36 @@ def default_softening(G, m_i, m_j) -> np.ndarray:
     """
     u = np.finfo(np.float64).eps
     scale = u * SOFTENING_TIME**2 / SOFTENING_PRECISION
-    return np.cbrt(scale * np.asarray(G, dtype=np.float64) * np.maximum(m_i, m_j))
+    return portable_cbrt(scale * np.asarray(G, dtype=np.float64) * np.maximum(m_i, m_j))
+
+
+def portable_cbrt(x) -> np.ndarray:
+    """Cube root of ``x >= 0`` from IEEE's correctly rounded operations only: the same bits on every machine.
+
+    ``np.cbrt`` calls the platform's math library (or numpy's own SIMD code), whose last bit differs between
+    builds; a computed softening enters the model, hence its fingerprint (:meth:`springsim.Model.fingerprint`), which
+    must not. Here ``x = m 2^(3q)`` exactly (``frexp``, ``ldexp``, with ``m`` in [1/2, 4)), then eight Newton steps
+    ``y <- y - (y^3 - m) / (3 y^2)`` from ``y = 1`` (quadratic convergence: full precision after five), then
+    ``y 2^q``. Accurate to about one unit in the last place.
+
+    Parameters
+    ----------
+    x : float or ndarray
+        Non-negative finite values.
+
+    Returns
+    -------
+    ndarray
+        ``x^(1/3)``, shape of ``x``; 0 where ``x`` is 0.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    m, e = np.frexp(x)
+    r = np.mod(e, 3)
+    m = np.ldexp(m, r)
+    y = np.ones_like(m)
+    for _ in range(8):
+        y = y - (y * y * y - m) / (3.0 * (y * y))
+    return np.where(x == 0.0, 0.0, np.ldexp(y, (e - r) // 3))
 
 
 class ForceGravitational(ForceTerm):
