@@ -56,10 +56,12 @@ def _seq_blocks(PETSc, lib, A) -> list:
     return [Ad, Ao]
 
 
-def _value_arrays(PETSc, lib, handles, nnz, blocked=False):
+def _value_arrays(PETSc, lib, handles, nnz, blocked=False, read=False):
     """Yield ``(block index, writable view of its values)`` for the ``SeqAIJ`` (``blocked``: ``SeqBAIJ``) blocks
-    ``handles`` of ``nnz`` entries each; every array is restored after."""
+    ``handles`` of ``nnz`` entries each; every array is restored after (``read``: ``MatSeqAIJGetArrayRead``, which
+    leaves the matrix's state as it was; the view must then not be written)."""
     get, restore = ((lib.MatSeqBAIJGetArray, lib.MatSeqBAIJRestoreArray) if blocked
+                    else (lib.MatSeqAIJGetArrayRead, lib.MatSeqAIJRestoreArrayRead) if read
                     else (lib.MatSeqAIJGetArray, lib.MatSeqAIJRestoreArray))
     get.restype = restore.restype = ctypes.c_int
     for b, h in enumerate(handles):
@@ -76,12 +78,12 @@ def _value_arrays(PETSc, lib, handles, nnz, blocked=False):
                 raise PETSc.Error(err)
 
 
-def _checked_arrays(PETSc, lib, A, nnz, blocked=False):
+def _checked_arrays(PETSc, lib, A, nnz, blocked=False, read=False):
     """:func:`_value_arrays` of ``A``'s blocks, asked for each time (PETSc may replace a parallel matrix's blocks, as
     ``MATMPIBAIJ`` does in a redundant coarse solve's set-up); ValueError when their sizes are not ``nnz``."""
     if _split_sizes(PETSc, A) != nnz:
         raise ValueError("the matrix no longer has the pattern its direct access was made for")
-    return _value_arrays(PETSc, lib, _seq_blocks(PETSc, lib, A), nnz, blocked)
+    return _value_arrays(PETSc, lib, _seq_blocks(PETSc, lib, A), nnz, blocked, read=read and not blocked)
 
 
 def reproduces(PETSc, A, write, mpi) -> bool:
@@ -166,8 +168,9 @@ class AIJValues:
         A.assemble()
 
     def read(self, A, out: np.ndarray) -> None:
-        """``out`` (in the pattern's order, or ``source``'s) = ``A``'s owned rows. Not collective."""
-        for b, view in _checked_arrays(self.PETSc, self.lib, A, self.nnz, self.blocked):
+        """``out`` (in the pattern's order, or ``source``'s) = ``A``'s owned rows (``A``'s state unchanged, on AIJ).
+        Not collective."""
+        for b, view in _checked_arrays(self.PETSc, self.lib, A, self.nnz, self.blocked, read=True):
             idx = self.parts[b]
             for lo in range(0, idx.size, _GATHER):
                 out[idx[lo:lo + _GATHER]] = view[lo:lo + _GATHER]

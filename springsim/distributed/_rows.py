@@ -52,8 +52,11 @@ class Rows:
         return self.gids[self.n_own:]
 
     def square(self) -> sp.bsr_matrix:
-        """The blocks in own columns (the rank's diagonal block), square, indices sorted."""
+        """The blocks in own columns (the rank's diagonal block), square, indices sorted: the rows themselves (no
+        copy) when they have no ghost column."""
         b = self.bsr
+        if self.gids.size == self.n_own and b.has_sorted_indices:
+            return b
         keep = b.indices < self.n_own
         rows = np.repeat(np.arange(b.indptr.size - 1), np.diff(b.indptr))[keep]
         indptr = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=b.indptr.size - 1))])

@@ -55,7 +55,7 @@ from ..system import System
 from ._aij import petsc_library as _petsc_library
 from ._petsc import import_petsc
 from .partition import PARTITIONERS, LocalPart, contiguous_offsets, pair_families, system_order
-from .sa import SmoothedAggregation
+from .sa import SMOOTHERS, SmoothedAggregation
 from .scene import ScenePart, model_part, repartition
 
 __all__ = ["DistributedSystem", "GAMG_DEFAULTS", "SPRINGSIM_OPTIONS", "graph_partition", "owned_row_pattern",
@@ -89,11 +89,16 @@ GAMG_DEFAULTS = {"mg_levels_ksp_chebyshev_esteig": "0,0.1,0,1.3"}
 #:   same coefficients ``(a, b)`` whole (the new matrix on its finest level only) until that once goes stale in
 #:   the run, and otherwise with its coarse operators recomputed (the prolongators kept;
 #:   ``pc_stats["coarse_updates"]``).
+#: * ``-springsim_sa_smoother``: ``sor`` (PETSc's local symmetric SOR on the finest level of ``sa``, point sweeps on
+#:   the AIJ matrix) or ``gs`` (a symmetric block Gauss-Seidel sweep there with springsim's compiled kernels on a
+#:   BSR copy of the rank's diagonal block, :class:`~springsim.distributed.sa.SmoothedAggregation`): the same
+#:   iterations; on the benchmark cloth at n = 512, 22-26 % less time per solve and a one-rank step 1.14-1.20x the
+#:   serial one instead of 1.24-1.37x, for 5 % more memory per rank (BENCHMARKS.md#distributed).
 #: * ``-springsim_insertion``: ``direct`` (the owned rows' values gathered straight into the AIJ matrix's arrays,
 #:   :class:`~springsim.distributed._aij.DirectInsertion`, checked once against PETSc's own insertion and replaced
 #:   by it where they differ) or ``petsc`` (``MatSetValuesBlockedLocal`` for every block).
 SPRINGSIM_OPTIONS = {"springsim_fine_smoother": "sor", "springsim_pc_reuse": "2", "springsim_pc": "sa",
-                     "springsim_insertion": "direct"}
+                     "springsim_sa_smoother": "sor", "springsim_insertion": "direct"}
 
 #: The values of ``-springsim_pc``.
 SPRINGSIM_PCS = ("sa", "gamg")
@@ -433,7 +438,11 @@ class DistributedSystem(System):
                                               f"{self.insertion!r:.40}")
         #: the preconditioner is springsim's smoothed aggregation (no -pc_type option and no other pc_type given)
         self.use_sa = self.springsim_pc == "sa" and pc_type is None and not opts.hasName("pc_type")
-        self._sa = SmoothedAggregation(PETSc, self.comm) if self.use_sa else None
+        sa_smoother = opts.getString("springsim_sa_smoother", SPRINGSIM_OPTIONS["springsim_sa_smoother"])
+        if sa_smoother not in SMOOTHERS:
+            raise SceneError("petsc_options", f"-springsim_sa_smoother must be {' or '.join(SMOOTHERS)}, got "
+                                              f"{sa_smoother!r:.40}")
+        self._sa = SmoothedAggregation(PETSc, self.comm, smoother=sa_smoother) if self.use_sa else None
         self._sa_whole = True  # kept levels serve a matrix of the same coefficients whole (until that goes stale)
         self._coefficients = None  # (a, b) of the last assembly
         try:

@@ -157,14 +157,14 @@ def pc_reuse(scene, out):
 
     def clear():
         for name in ("springsim_pc_reuse", "springsim_fine_smoother", "mg_levels_pc_type", "springsim_pc",
-                     "springsim_insertion"):
+                     "springsim_insertion", "springsim_sa_smoother"):
             if opts.hasName(name):
                 opts.delValue(name)
 
     model = make(scene)
     report = {}
     for bad in ("-springsim_pc_reuse 0", "-springsim_pc_reuse x", "-springsim_fine_smoother ilu", "-springsim_pc ml",
-                "-springsim_insertion csr"):
+                "-springsim_insertion csr", "-springsim_sa_smoother ilu"):
         try:
             DistributedSystem(model, petsc_options=bad)
             report[bad] = "accepted"
@@ -187,6 +187,23 @@ def pc_reuse(scene, out):
     report["fine_default"] = fine_smoother("")
     report["fine_gamg"] = fine_smoother("-springsim_fine_smoother gamg")
     report["fine_user"] = fine_smoother("-mg_levels_pc_type jacobi")
+
+    def sa_smoothers(options):
+        """The finest SA level's smoothers before and after the coarse correction, and the CG iterations."""
+        s = DistributedSystem(model, rtol=1e-8, petsc_options=options)
+        q, v = s.local_state(model.particle_q, model.particle_qd)
+        A = s.assemble(q, v, 1e-2, 1e-1, "spd")
+        res = s.solve(A, np.ones(3 * s.part.n_own))
+        pc = s._kept[0].getPC()
+        L = pc.getMGLevels()
+        kinds = [f"{k.getType()}+{k.getPC().getType()}" for k in (pc.getMGSmoother(L - 1), pc.getMGSmoother(L - 2))]
+        s.destroy()
+        clear()
+        return dict(kinds=kinds, ok=res.converged, its=res.iterations)
+
+    report["sa_default"] = sa_smoothers("")
+    report["sa_gs"] = sa_smoothers("-springsim_sa_smoother gs")
+    report["sa_user"] = sa_smoothers("-springsim_sa_smoother gs -mg_levels_pc_type bjacobi")
 
     rtol = 1e-8
     for pc in ("gamg", "sa"):
@@ -211,8 +228,9 @@ def pc_reuse(scene, out):
                           residual=true_residual(A, res.x), fallback=res.fallback))
         s.destroy()
         report[f"solves_{pc}"] = stats
-    # springsim's levels kept whole for the same coefficients until that goes stale: the cloth stretched by 1.6
-    s = DistributedSystem(model, rtol=rtol, petsc_options="-springsim_pc_reuse 3")
+    # springsim's levels kept whole for the same coefficients until that goes stale: the cloth stretched by 1.6 (the
+    # finest level swept by springsim's kernels, whose copy of it must follow the matrix)
+    s = DistributedSystem(model, rtol=rtol, petsc_options="-springsim_pc_reuse 3 -springsim_sa_smoother gs")
     q, v = s.local_state(model.particle_q, model.particle_qd)
     rhs = np.ones(3 * s.part.n_own)
     switch = []
@@ -220,7 +238,7 @@ def pc_reuse(scene, out):
         A = s.assemble(scale * q, v, 0.01, 0.1, "spd")
         res = s.solve(A, rhs)
         r = rhs - A @ res.x
-        switch.append(dict(s.pc_stats, ok=res.converged, whole=s._sa_whole,
+        switch.append(dict(s.pc_stats, ok=res.converged, whole=s._sa_whole, sweep_refreshes=s._sa.sweep_refreshes,
                            residual=float(np.sqrt(s.sum(r @ r) / s.sum(rhs @ rhs)))))
     s.destroy()
     report["sa_switch"] = switch
@@ -543,6 +561,22 @@ def weighted_partition(out):
         with open(out, "w") as fh:
             json.dump(report, fh)
     return 0
+
+def left_alive(scene):
+    """A program that solves with the finest SA level swept by springsim's kernels (a Python PC) and exits without
+    destroying its system: it must exit cleanly (the PC's Python context released before PETSc finalises)."""
+    from springsim.distributed.system import DistributedSystem
+
+    from .scenes import scene as make
+
+    model = make(scene)
+    s = DistributedSystem(model, rtol=1e-8, petsc_options="-springsim_sa_smoother gs")
+    q, v = s.local_state(model.particle_q, model.particle_qd)
+    A = s.assemble(q, v, 1e-2, 1e-1, "spd")
+    assert s.solve(A, np.ones(3 * s.part.n_own)).converged
+    print("solved", flush=True)
+    return 0  # s is not destroyed
+
 
 def read_in_pieces(path, chunk):
     """A scene file read in chunks of ``chunk`` items on rank 0 and built in parts
