@@ -28,6 +28,7 @@ import time
 from pathlib import Path
 
 from .common import fmt, machine_info, markdown_table, write_csv
+from .distributed import _mpiexec
 
 COLUMNS = ["mode", "ranks", "particles", "springs", "file_mb", "build_s", "max_rss_mb", "min_rss_mb",
            "fingerprint_ok", "load"]
@@ -77,13 +78,6 @@ def worker(argv) -> int:
     if comm.rank == 0:
         Path(out).write_text(json.dumps(dict(build_s=wall, rss=rss, fingerprints=fps)))
     return 0
-
-
-def _mpiexec(ranks: int) -> list[str]:
-    cmd = ["mpiexec", "--oversubscribe", "--quiet", "-n", str(ranks)]
-    if hasattr(os, "geteuid") and os.geteuid() == 0:
-        cmd.insert(1, "--allow-run-as-root")
-    return cmd
 
 
 def main(argv=None) -> int:

@@ -14,7 +14,7 @@ from springsim import ModelBuilder
 from springsim.analysis.reference import reference_trajectory
 from springsim.forces import eval_forces
 
-__all__ = ["PENDULUM_YAML", "mixed_scene_yaml", "random_scene", "internal", "conservative", "two_particle_scene", "damped_chain", "fd_jacobians", "rel_err", "observed_errors",
+__all__ = ["PENDULUM_YAML", "mixed_scene_yaml", "assert_same_part", "random_scene", "internal", "conservative", "two_particle_scene", "damped_chain", "fd_jacobians", "rel_err", "observed_errors",
            "run_cli", "one_line_error"]
 
 
@@ -58,6 +58,30 @@ def mixed_scene_yaml(n: int = 40, seed: int = 3) -> str:
         lines.append(f"  - {{particle_ids: [{i}, {j}], G: 0.5{soft}}}")
     lines.append(f"pin: [7, {{box: [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]}}, {n - 10}]")
     return "\n".join(lines) + "\n"
+
+
+def assert_same_part(got, ref):
+    """Two ScenePart s (springsim.distributed) are the same to the last bit: the local part (particles, numbering,
+    the pair and particle models), the fixed particles and their model, the whole scene's numbers; and ``got`` has
+    ``ref``'s model's fingerprint when ``ref`` has one."""
+    for k in ("local_particles", "local_to_free", "offsets"):
+        assert np.array_equal(getattr(got.part, k), getattr(ref.part, k)), k
+    assert (got.part.n_own, got.part.n_ghost) == (ref.part.n_own, ref.part.n_ghost)
+    for a, b in ((got.part.pair_model, ref.part.pair_model), (got.part.particle_model, ref.part.particle_model),
+                 (got.fixed_model, ref.fixed_model)):
+        for k in ("particle_q", "particle_qd", "particle_mass", "particle_radius", "particle_fixed"):
+            assert np.array_equal(getattr(a, k), getattr(b, k), equal_nan=True), k
+        assert list(a.terms) == list(b.terms)
+        for t in a.terms:
+            assert list(a.terms[t]) == list(b.terms[t])
+            for k in a.terms[t]:
+                assert np.array_equal(a.terms[t][k], b.terms[t][k], equal_nan=True), (t, k)
+        assert (a.gravity, a.up_axis, a.pair_epsilon, a.metadata) == (b.gravity, b.up_axis, b.pair_epsilon,
+                                                                      b.metadata)
+    assert np.array_equal(got.fixed_ids, ref.fixed_ids)
+    for k in ("particle_count", "free_count", "gravity", "up_axis", "pair_epsilon", "damped", "metadata",
+              "cloth_grids", "pair_counts"):
+        assert getattr(got, k) == getattr(ref, k), k
 
 
 def _spring_data(rng, b, pos, is_fixed, o):

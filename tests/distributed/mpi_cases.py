@@ -584,6 +584,7 @@ def read_in_pieces(path, chunk):
     are those of the model a whole load builds (model_part), to the last bit."""
     import springsim.scene.yaml_stream as ys
     from springsim.distributed import import_petsc, model_part, streamed_part
+    from tests.helpers import assert_same_part
     from springsim.scene import load_scene
 
     _, MPI = import_petsc()
@@ -593,22 +594,7 @@ def read_in_pieces(path, chunk):
     whole = load_scene(path).model
     ref = model_part(whole, comm.size, comm.rank)
     assert got.model_fingerprint == whole.fingerprint()
-    for k in ("local_particles", "local_to_free", "offsets"):
-        assert np.array_equal(getattr(got.part, k), getattr(ref.part, k)), k
-    assert (got.part.n_own, got.part.n_ghost) == (ref.part.n_own, ref.part.n_ghost)
-    for a, b in ((got.part.pair_model, ref.part.pair_model), (got.part.particle_model, ref.part.particle_model),
-                 (got.fixed_model, ref.fixed_model)):
-        for k in ("particle_q", "particle_qd", "particle_mass", "particle_radius", "particle_fixed"):
-            assert np.array_equal(getattr(a, k), getattr(b, k), equal_nan=True), k
-        assert list(a.terms) == list(b.terms)
-        for t in a.terms:
-            assert list(a.terms[t]) == list(b.terms[t])
-            for k in a.terms[t]:
-                assert np.array_equal(a.terms[t][k], b.terms[t][k], equal_nan=True), (t, k)
-    assert np.array_equal(got.fixed_ids, ref.fixed_ids)
-    for k in ("particle_count", "free_count", "gravity", "up_axis", "pair_epsilon", "damped", "metadata",
-              "pair_counts"):
-        assert getattr(got, k) == getattr(ref, k), k
+    assert_same_part(got, ref)
     return 0
 
 

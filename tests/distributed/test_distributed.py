@@ -321,6 +321,20 @@ def test_bad_input_one_message_on_every_rank(tmp_path):
     assert lines == [f"springsim: error: {bad}: springs[0].stiffness: must be >= 0, got -3"]
 
 
+def _matches_serial_run(scene_path, out, shape, tol):
+    """The frames in ``out`` (a distributed run of ``scene_path``) are a serial run's of the same scene (written next
+    to ``out``) to ``tol``, of ``shape``, with the same model fingerprint."""
+    from springsim.cli import main
+    from springsim.run.driver import Trajectory
+
+    serial = out.parent / ("serial_" + out.name)
+    assert main(["run", str(scene_path), "--out", str(serial), "-q"]) == 0
+    d, s = Trajectory.load(out), Trajectory.load(serial)
+    assert d.q.shape == s.q.shape == shape
+    assert np.abs(d.q - s.q).max() < tol
+    assert d.meta["model_fingerprint"] == s.meta["model_fingerprint"] is not None
+
+
 @needs_petsc
 @pytest.mark.parametrize("ranks", [2, 3])
 @pytest.mark.parametrize("name, chunk", [("mixed", 3), ("mixed", 1 << 16), ("small_cloth", 7)])
@@ -350,11 +364,7 @@ def test_cli_scene_with_lists_is_read_in_pieces(tmp_path):
     path.write_text(mixed_scene_yaml())
     out = tmp_path / "d.npz"
     mpirun(2, [sys.executable, "-m", "springsim", "run", str(path), "--backend", "petsc", "--out", str(out), "-q"])
-    assert main(["run", str(path), "--out", str(tmp_path / "s.npz"), "-q"]) == 0
-    d, s = Trajectory.load(out), Trajectory.load(tmp_path / "s.npz")
-    assert d.q.shape == s.q.shape == (6, 40, 3)
-    assert np.abs(d.q - s.q).max() < 1e-6
-    assert d.meta["model_fingerprint"] == s.meta["model_fingerprint"] is not None
+    _matches_serial_run(path, out, (6, 40, 3), 1e-6)
     bad = tmp_path / "bad.yaml"
     head, _, tail = path.read_text().rpartition("softening: 0.05")
     bad.write_text(head + "softening: 1.0e-200" + tail)
@@ -379,12 +389,8 @@ def test_cli_generator_scene_is_generated_per_rank(tmp_path):
                           "linear_rtol: 1.0e-10}\nbenchmark_cloth: {n: 12, ke: 2.0e+3}\n")
     out = tmp_path / "d.npz"
     mpirun(3, "cli_generated", str(scene_path), str(out))
-    assert main(["run", str(scene_path), "--out", str(tmp_path / "s.npz"), "-q"]) == 0
-    d, s = Trajectory.load(out), Trajectory.load(tmp_path / "s.npz")
-    assert d.q.shape == s.q.shape == (5, 144, 3)
-    assert np.abs(d.q - s.q).max() < 1e-7
     # no rank had the whole model; its fingerprint, hashed in bands of rows, is the serial model's
-    assert d.meta["model_fingerprint"] == s.meta["model_fingerprint"] is not None
+    _matches_serial_run(scene_path, out, (5, 144, 3), 1e-7)
     bad = tmp_path / "bad.yaml"
     for block, message in (("benchmark_cloth: {n: 12, ke: -3}", "benchmark_cloth.ke: must be >= 0, got -3"),
                            # only rank 1's rows overflow: the ranks agree, the particle named as serially

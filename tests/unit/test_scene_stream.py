@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import yaml
-from helpers import mixed_scene_yaml
+from helpers import assert_same_part, mixed_scene_yaml
 
 import springsim.scene.yaml_stream as ys
 from springsim.distributed.scene import model_part
@@ -121,17 +121,6 @@ def test_a_scene_with_lists_and_a_generator_block_is_built_whole(tmp_path):
 
 
 # -- built in parts ---------------------------------------------------------------------------------------------------
-def _same_model(a, b):
-    for k in ("particle_q", "particle_qd", "particle_mass", "particle_radius", "particle_fixed"):
-        assert np.array_equal(getattr(a, k), getattr(b, k), equal_nan=True), k
-    assert list(a.terms) == list(b.terms)
-    for t in a.terms:
-        assert list(a.terms[t]) == list(b.terms[t])
-        for k in a.terms[t]:
-            assert np.array_equal(a.terms[t][k], b.terms[t][k], equal_nan=True), (t, k)
-    assert (a.gravity, a.up_axis, a.pair_epsilon, a.metadata) == (b.gravity, b.up_axis, b.pair_epsilon, b.metadata)
-
-
 @pytest.mark.parametrize("chunk", [2, 1 << 16])
 @pytest.mark.parametrize("name", ["mixed"] + LISTED)
 def test_streamed_part_is_the_whole_models_part(name, chunk, mixed, monkeypatch):
@@ -140,16 +129,7 @@ def test_streamed_part_is_the_whole_models_part(name, chunk, mixed, monkeypatch)
     whole = load_scene(path).model
     got, ref = streamed_part(load_scene(path, build=False), OneRank()), model_part(whole, 1, 0)
     assert got.model_fingerprint == whole.fingerprint()
-    for k in ("local_particles", "local_to_free", "offsets"):
-        assert np.array_equal(getattr(got.part, k), getattr(ref.part, k)), k
-    assert (got.part.n_own, got.part.n_ghost) == (ref.part.n_own, ref.part.n_ghost)
-    _same_model(got.part.pair_model, ref.part.pair_model)
-    _same_model(got.part.particle_model, ref.part.particle_model)
-    _same_model(got.fixed_model, ref.fixed_model)
-    assert np.array_equal(got.fixed_ids, ref.fixed_ids)
-    for k in ("particle_count", "free_count", "gravity", "up_axis", "pair_epsilon", "damped", "metadata",
-              "cloth_grids", "pair_counts"):
-        assert getattr(got, k) == getattr(ref, k), k
+    assert_same_part(got, ref)
 
 
 @pytest.mark.parametrize("edit, path", [
