@@ -339,7 +339,7 @@ class SmoothedAggregation:
             T, Bc, dead = _tentative(agg, Bk, bs)
             D, Dinv = block_diagonal_inverse(Asq, self.kernels)
             if li == 0 and self._sweeps(lv.A):  # the diagonal block and its blocks' inverses, for the sweeps
-                lv.sweep = (lv.A.stateGet(), (Asq.indptr, Asq.indices, np.ascontiguousarray(Asq.data)), Dinv)
+                self._set_sweep(lv, Asq, Dinv)
             del Asq
             rho, lv.ritz = self._lanczos(lv.A, D, Dinv, lv.ritz)
             if not (np.isfinite(rho) and rho > 0.0):
@@ -382,7 +382,7 @@ class SmoothedAggregation:
             if len(levels) > 1:
                 self._finest_rows(levels[0], levels[0].A, levels[0].extract.bs)
                 if self._sweeps(levels[0].A):  # the sweeps' copy from the rows just read
-                    self._set_sweep(levels[0], levels[0].rows)
+                    self._set_sweep(levels[0], levels[0].rows.square())
             for lv, coarse in zip(levels[:-1], levels[1:]):
                 self._coarse_operator(lv, coarse)
             levels[-1].rows = None
@@ -407,15 +407,15 @@ class SmoothedAggregation:
         lv = self.levels[0]
         if lv.sweep is None or lv.sweep[0] != lv.A.stateGet():
             lv.sweep = None  # (the old copy goes before the new one is made)
-            self._set_sweep(lv, lv.extract(lv.A))
+            self._set_sweep(lv, lv.extract(lv.A).square())
             self.sweep_refreshes += 1
         return lv.sweep[1], lv.sweep[2]
 
-    def _set_sweep(self, lv: _Level, rows) -> None:
-        """``lv.sweep`` from the finest level's rows holding its current values: the rank's diagonal block (the rows
-        themselves on one rank) and its inverted diagonal blocks."""
-        sq = rows.square()
-        _, dinv = block_diagonal_inverse(sq, self.kernels)
+    def _set_sweep(self, lv: _Level, sq: sp.bsr_matrix, dinv: np.ndarray | None = None) -> None:
+        """``lv.sweep`` from the rank's diagonal block ``sq`` of the finest level's current values (``Rows.square``:
+        the rows themselves on one rank) and its inverted diagonal blocks (computed unless given)."""
+        if dinv is None:
+            _, dinv = block_diagonal_inverse(sq, self.kernels)
         lv.sweep = (lv.A.stateGet(), (sq.indptr, sq.indices, np.ascontiguousarray(sq.data)), dinv)
 
     def _coarse_operator(self, lv: _Level, coarse: _Level) -> None:

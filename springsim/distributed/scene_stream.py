@@ -282,10 +282,8 @@ def _fingerprint(mpi, root: int, n: int, parts: dict, pairs: dict, model: dict, 
         if whole is None:  # a per-model array: the root's
             yield piece
             return
-        yield piece
-        for r in range(size):
-            if r != root:
-                yield mpi.recv(source=r, tag=_TAG + 1)
+        for r in range(size):  # the blocks in rank order
+            yield piece if r == root else mpi.recv(source=r, tag=_TAG + 1)
 
     if rank == root:
         def declared(name, piece, whole):
