@@ -14,7 +14,7 @@ from springsim import ModelBuilder
 from springsim.analysis.reference import reference_trajectory
 from springsim.forces import eval_forces
 
-__all__ = ["PENDULUM_YAML", "mixed_scene_yaml", "assert_same_part", "random_scene", "internal", "conservative", "two_particle_scene", "damped_chain", "fd_jacobians", "rel_err", "observed_errors",
+__all__ = ["PENDULUM_YAML", "TWO_CLOTHS_YAML", "mixed_scene_yaml", "assert_same_part", "random_scene", "internal", "conservative", "two_particle_scene", "damped_chain", "fd_jacobians", "rel_err", "observed_errors",
            "run_cli", "one_line_error"]
 
 
@@ -29,12 +29,25 @@ springs:
 """
 
 
-def mixed_scene_yaml(n: int = 40, seed: int = 3) -> str:
+#: Two generator blocks and a ``pin:``, no item lists: neither one generator block alone (generated per rank) nor a
+#: file with lists, but read in parts all the same.
+TWO_CLOTHS_YAML = """
+solver: {type: implicit_euler, timestep: 0.01, steps: 3}
+cloth:
+  - {nx: 5, ny: 4, size: [1, 1], pin: top}
+  - {nx: 4, ny: 6, origin: [2, 0, 0], spacing: 0.25, damping: 0.3, pin: none}
+pin: [23, {box: [[2.4, 0.9, -1], [3, 1.1, 1]]}]
+"""
+
+
+def mixed_scene_yaml(n: int = 40, seed: int = 3, cloths: bool = False) -> str:
     """A scene file that uses the format's freedoms: its pair lists before its particles, an alias into a top-level
     ``x-`` key, ``ke`` for ``stiffness``, rest lengths given and computed, gravitational pairs with and without a
     softening, drag on some particles, fixed particles given in the items and by a ``pin:`` of indices and a box,
-    a spring between two fixed particles; ``up_axis: y``. Its arrays come from a seeded generator, printed
-    to 4 digits (the same file on every machine)."""
+    a spring between two fixed particles; ``up_axis: y``. With ``cloths``, also two generator blocks (a 5 x 4 cloth
+    pinned at its top and a 6 x 3 one pinned by a box, with drag and damping), two springs joining explicit particles
+    to cloth particles, and a ``pin:`` index among the cloths' particles. Its arrays come from a seeded generator,
+    printed to 4 digits (the same file on every machine)."""
     rng = np.random.default_rng(seed)
     lines = ["name: mixed", "x-rest: &v0 [0.0, 0.0, 0.0]", "springs:"]
     for k in range(int(1.75 * n)):
@@ -56,7 +69,17 @@ def mixed_scene_yaml(n: int = 40, seed: int = 3) -> str:
         i, j = rng.choice(n, 2, replace=False)
         soft = "" if k % 2 else ", softening: 0.05"
         lines.append(f"  - {{particle_ids: [{i}, {j}], G: 0.5{soft}}}")
-    lines.append(f"pin: [7, {{box: [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]}}, {n - 10}]")
+    if not cloths:
+        lines.append(f"pin: [7, {{box: [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]}}, {n - 10}]")
+        return "\n".join(lines) + "\n"
+    lines.append(f"pin: [7, {{box: [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]}}, {n - 10}, {n + 22}]")
+    lines.append("cloth:")
+    lines.append("  - {nx: 5, ny: 4, origin: [3, 0, 0], size: [1, 1], pin: top, ke: 300}")
+    lines.append("  - {nx: 6, ny: 3, origin: [0, 3, 0], plane: xz, spacing: 0.2, drag: 0.01, damping: 0.2, "
+                 "bending: false, pin: [{box: [[-1, 2, -1], [0.3, 4, 1]]}]}")
+    springs = lines.index("springs:")
+    lines.insert(springs + 1, f"  - {{particle_ids: [2, {n + 3}], stiffness: 50.0}}")
+    lines.insert(springs + 1, f"  - {{particle_ids: [{n + 25}, 4], stiffness: 60.0, rest_length: 0.5}}")
     return "\n".join(lines) + "\n"
 
 

@@ -392,20 +392,11 @@ def cloth_grid_fingerprint(grid: dict, *, gravity: float = -9.81, up_axis="z") -
     with _global_ids(ids):
         t = tb.finalize()
 
-    # the springs: family by family in the builder's order; within a family, its blocks of one offset j - i in
-    # cloth_grid_pairs' order, each in row-major order of its first particle
-    blocks = []
-    for family, coef in c["springs"].items():
-        d = topo[family][:, 1] - topo[family][:, 0]
-        blocks += [(family, coef, int(off)) for off in d[np.sort(np.unique(d, return_index=True)[1])]]
-
+    blocks = grid_spring_blocks(c)
     counts = {}  # (block, band) -> springs: the coefficients need only the counts
 
     def block_pairs(b, r0, r1):
-        family, _, off = blocks[b]
-        w1 = min(r1 + 2, ny)  # pairs reach two rows down
-        ij = cloth_grid_pairs(nx, w1 - r0, bending=c["bending"])[family]
-        ij = ij[(ij[:, 1] - ij[:, 0] == off) & (ij[:, 0] < (r1 - r0) * nx)]
+        ij, w1 = grid_block_pairs(c, blocks[b], r0, r1)
         counts[b, r0] = len(ij)
         return ij, w1
 
@@ -452,6 +443,29 @@ def cloth_grid_fingerprint(grid: dict, *, gravity: float = -9.81, up_axis="z") -
     beyond = [(name, a.shape, a.dtype, [a]) for name, a in t.data_beyond_v1()]  # none for a grid (tested equal)
     return streamed_fingerprint(v1, gravity=t.gravity, up_axis=t.up_axis, pair_epsilon=t.pair_epsilon,
                                 cloth_grids=(ClothGrid(0, nx, ny),), beyond=beyond)
+
+
+def grid_spring_blocks(c: dict) -> list:
+    """A resolved grid's springs (:func:`~springsim.model.builder.resolve_cloth_grid`) in the builder's order, as
+    blocks ``(family, (stiffness, damping), offset j - i)``: family by family, within a family its blocks of one
+    offset in :func:`~springsim.model.topology.cloth_grid_pairs`' order, each in row-major order of its first
+    particle (:func:`grid_block_pairs`)."""
+    topo = cloth_grid_pairs(c["nx"], min(c["ny"], 3), bending=c["bending"])
+    blocks = []
+    for family, coef in c["springs"].items():
+        d = topo[family][:, 1] - topo[family][:, 0]
+        blocks += [(family, coef, int(off)) for off in d[np.sort(np.unique(d, return_index=True)[1])]]
+    return blocks
+
+
+def grid_block_pairs(c: dict, block: tuple, r0: int, r1: int) -> tuple:
+    """The springs of one block of :func:`grid_spring_blocks` whose first particle is in rows ``r0 .. r1 - 1``, as
+    pairs of grid indices less ``r0 * nx``, and the row after the last one they reach."""
+    family, _, off = block
+    nx, ny = c["nx"], c["ny"]
+    w1 = min(r1 + 2, ny)  # pairs reach two rows down
+    ij = cloth_grid_pairs(nx, w1 - r0, bending=c["bending"])[family]
+    return ij[(ij[:, 1] - ij[:, 0] == off) & (ij[:, 0] < (r1 - r0) * nx)], w1
 
 
 @contextmanager

@@ -1,16 +1,18 @@
 """A YAML scene read in pieces on one rank and built in parts on every rank: no rank holds the whole model.
 
 :func:`streamed_part` is the distributed construction of a scene file with item lists (``particles``,
-``springs``, ``gravitational``) and no generator block (:attr:`springsim.scene.Scene.stream`). It goes in stages,
-each a few all-to-all exchanges of numpy rows (:func:`~springsim.distributed.scene._route`), with no loop over
-particles or pairs:
+``springs``, ``gravitational``), with or without generator blocks (:attr:`springsim.scene.Scene.stream`). It goes
+in stages, each a few all-to-all exchanges of numpy rows (:func:`~springsim.distributed.scene._route`), with no
+loop over particles or pairs:
 
 1. **Read and checked on the root, a chunk at a time** (:func:`springsim.scene.yaml_stream.item_chunks`): each
    chunk of particles or pairs is checked as a whole load checks it (the items' types, then the values, with the
    builder's own checks), its error paths counted from the start of its list, and sent to the rank that holds
    that stretch of the list: rank ``r`` holds block ``r`` of the particles by id and block ``r`` of each pair
-   list in file order (:func:`~springsim.distributed.partition.contiguous_offsets`). The root holds one chunk at
-   a time besides its own blocks.
+   list in file order (:func:`~springsim.distributed.partition.contiguous_offsets`). The generator blocks'
+   particles and springs follow, generated on the root a band of grid rows at a time with the builder's
+   arithmetic and order (after the file's own, as :meth:`springsim.ModelBuilder.add_cloth_grid` adds them). The
+   root holds one chunk at a time besides its own blocks (and a grid's pin mask, one byte per particle).
 2. **Completed where held**: the ``pin:`` section is applied to each block of particles (indices and boxes); the
    pairs' computed values (a spring's rest length, a softening length) are computed from the rows of their
    particles, fetched from the ranks that hold them, with the terms' own
@@ -38,12 +40,13 @@ import numpy as np
 from ..errors import SceneError
 from ..forces._data import data_terms, term_attributes, term_group
 from ..model import AXES, Model
-from ..model.builder import ModelBuilder, _check_pairs
+from ..model.model import ClothGrid
+from ..model.builder import ModelBuilder, _check_pairs, resolve_cloth_grid
 from ..model.model import _has_data, _model_names, fingerprint_v1_names, streamed_fingerprint
 from ..model.topology import pin_boxes, pin_mask
-from ..scene.yaml_io import _parse_pairs, _parse_particles, _spelled_as_written, _term_keys
+from ..scene.yaml_io import _parse_pairs, _parse_particles, _renamed, _spelled_as_written, _term_keys
 from .partition import _sub_model, contiguous_offsets, local_part
-from .scene import _BASE, ScenePart, _as_mpi, _route
+from .scene import _BASE, ScenePart, _as_mpi, _grid_spring_count, _route
 
 __all__ = ["streamed_part"]
 
@@ -147,7 +150,7 @@ def _read(mpi, stream: dict, poff: np.ndarray, qoff: dict, terms: list, root: in
 
     rank, size = mpi.Get_rank(), mpi.Get_size()
     outline = stream["outline"]
-    n = outline.counts.get("particles", 0)
+    n = int(poff[-1])  # every particle, the generated ones too (explicit pairs may join them)
     by_key = {key: (term, cls) for term, cls, key in terms}
     got = {"particles": [(-1, _particle_chunk([], 0))]}  # empty pieces: the columns of an empty block
     for term, cls, key in terms:
@@ -156,16 +159,23 @@ def _read(mpi, stream: dict, poff: np.ndarray, qoff: dict, terms: list, root: in
     def keep(what, start, cols):
         got[what].append((start, cols))
 
+    def chunks():
+        """(what, start, columns): the file's items, then the generator blocks' particles and springs."""
+        for key, start, items in item_chunks(outline):
+            if key == "particles":
+                yield key, start, _particle_chunk(items, start)
+            else:
+                term, cls = by_key[key]
+                yield term, start, _pair_chunk(cls, key, items, start, n)
+        yield from _grid_chunks(stream, outline.counts.get("particles", 0),
+                                outline.counts.get(by_key_of(terms, "spring"), 0))
+
     if rank == root:
         err = None
         try:
-            for key, start, items in item_chunks(outline):
-                if key == "particles":
-                    what, cols, off = key, _particle_chunk(items, start), poff
-                else:
-                    term, cls = by_key[key]
-                    what, cols, off = term, _pair_chunk(cls, key, items, start, n), qoff[term]
-                k = len(items)
+            for what, start, cols in chunks():
+                off = poff if what == "particles" else qoff[what]
+                k = len(next(iter(cols.values())))
                 for r in range(np.searchsorted(off, start, side="right") - 1, size):
                     a, b = max(start, off[r]), min(start + k, off[r + 1])
                     if a >= start + k:
@@ -177,7 +187,7 @@ def _read(mpi, stream: dict, poff: np.ndarray, qoff: dict, terms: list, root: in
                         keep(what, a, piece)
                     else:
                         mpi.send(("rows", what, a, piece), dest=r, tag=_TAG)
-                del cols, items
+                del cols
         except SceneError as e:
             err = e
         for r in range(size):
@@ -194,6 +204,54 @@ def _read(mpi, stream: dict, poff: np.ndarray, qoff: dict, terms: list, root: in
                 break
             keep(what, start, payload)
     return {what: _stacked([cols for _, cols in sorted(pieces, key=lambda x: x[0])]) for what, pieces in got.items()}
+
+
+def by_key_of(terms: list, term: str) -> str:
+    """The YAML key of a pair term's list (``spring`` -> ``springs``)."""
+    return next(key for t, _, key in terms if t == term)
+
+
+def _grid_chunks(stream: dict, start: int, springs: int):
+    """The generator blocks' particles and springs as chunks ``(what, start, columns)``, in the builder's order after
+    the file's own (particles from ``start``, springs from ``springs``), a band of grid rows at a time
+    (:data:`~springsim.distributed.scene.FINGERPRINT_PIECE` particles): the values of
+    :meth:`springsim.ModelBuilder.add_cloth_grid` to the last bit (the same resolved grid and arithmetic,
+    :func:`~springsim.distributed.scene.grid_spring_blocks`). Memory: the grid's pin mask and one band."""
+    from ..forces import FORCE_TERMS
+    from .scene import FINGERPRINT_PIECE, _grid_positions, _resolved_grid, grid_block_pairs, grid_spring_blocks
+
+    specs = [s for s in FORCE_TERMS["spring"].data if s.per == "pair"]
+    for path, kw, paths in stream.get("cloths", ()):
+        try:
+            c, fixed = _resolved_grid(kw)
+        except SceneError as e:
+            raise _renamed(e, paths) from None
+        nx, ny = c["nx"], c["ny"]
+        band = max(FINGERPRINT_PIECE // nx, 1)
+        bands = [(r, min(r + band, ny)) for r in range(0, ny, band)]
+        for r0, r1 in bands:
+            ids = np.arange(r0 * nx, r1 * nx, dtype=np.int64)
+            b = ModelBuilder()
+            b.add_particles(_grid_positions(c, ids), None, c["mass"], drag=c["drag"], fixed=fixed[r0 * nx:r1 * nx])
+            try:
+                cols = _particle_columns(b.finalize())
+            except SceneError as e:
+                raise _counted_from(e, "particles", start + r0 * nx) from None
+            yield "particles", start + r0 * nx, cols
+        for block in grid_spring_blocks(c):
+            ke, kd = block[1]
+            for r0, r1 in bands:
+                ij, _ = grid_block_pairs(c, block, r0, r1)
+                k = len(ij)
+                if not k:
+                    continue
+                cols = {"indices": ij + (start + r0 * nx)}
+                for spec in specs:
+                    cols[spec.name] = (np.full(k, ke) if spec.name == "stiffness" else
+                                       np.full(k, kd) if spec.name == "damping" else spec.filled(k))
+                yield "spring", springs, cols
+                springs += k
+        start += nx * ny
 
 
 def _pin(mpi, stream: dict, n: int, lo: int, hi: int, parts: dict) -> None:
@@ -305,8 +363,8 @@ def streamed_part(scene, comm=None, root: int = 0) -> ScenePart:
     Parameters
     ----------
     scene : springsim.scene.Scene
-        A scene loaded with ``build=False`` that has :attr:`~springsim.scene.Scene.stream` (a file with item lists
-        and no generator block), the same on every rank.
+        A scene loaded with ``build=False`` that has :attr:`~springsim.scene.Scene.stream` (a file with item lists),
+        the same on every rank.
     comm : mpi4py or petsc4py communicator, optional
         Default MPI's world.
     root : int
@@ -330,9 +388,15 @@ def streamed_part(scene, comm=None, root: int = 0) -> ScenePart:
     rank, size = mpi.Get_rank(), mpi.Get_size()
     stream = scene.stream
     counts_by_key = stream["outline"].counts
-    n = counts_by_key.get("particles", 0)
     terms = [(term, cls, key) for term, cls, key in _term_keys() if any(s.per == "pair" for s in cls.data)]
     counts = {term: counts_by_key.get(key, 0) for term, _, key in terms}
+    n = counts_by_key.get("particles", 0)
+    grids = []  # the generator blocks' grids, after the file's particles; their springs after the file's
+    for _, kw, _ in stream.get("cloths", ()):
+        c = resolve_cloth_grid(**{k: v for k, v in kw.items() if k != "pin"})  # (checked by the outline)
+        grids.append(ClothGrid(n, c["nx"], c["ny"]))
+        n += c["nx"] * c["ny"]
+        counts["spring"] += _grid_spring_count(c["nx"], c["ny"], c["bending"])
     poff = contiguous_offsets(n, size)
     qoff = {term: contiguous_offsets(counts[term], size) for term in counts}
     lo, hi = int(poff[rank]), int(poff[rank + 1])
@@ -340,7 +404,7 @@ def streamed_part(scene, comm=None, root: int = 0) -> ScenePart:
     eps = ModelBuilder().pair_epsilon
     up = stream["up_axis"]
     scalars = dict(gravity=float(stream["gravity"]), up_axis=AXES.index(up) if isinstance(up, str) else int(up),
-                   pair_epsilon=eps, cloth_grids=())
+                   pair_epsilon=eps, cloth_grids=tuple(grids))
 
     # 1. read on the root, blocks on every rank
     blocks = _read(mpi, stream, poff, qoff, terms, root)
@@ -435,5 +499,5 @@ def streamed_part(scene, comm=None, root: int = 0) -> ScenePart:
 
     return ScenePart(part=part, particle_count=n, free_count=F, fixed_ids=fixed_rows["id"].astype(np.int64),
                      fixed_model=fixed_model, gravity=scalars["gravity"], up_axis=scalars["up_axis"],
-                     pair_epsilon=eps, metadata=dict(stream["metadata"]), cloth_grids=(), damped=damped,
+                     pair_epsilon=eps, metadata=dict(stream["metadata"]), cloth_grids=tuple(grids), damped=damped,
                      model_fingerprint=fp, pair_counts=dict(counts))

@@ -46,7 +46,7 @@ from .._runtime import memory
 from ..errors import SceneError
 from ..forces._data import data_terms, term_group
 from ..model import AXES, Model
-from ..model.builder import COEFFICIENT_ALIASES, ModelBuilder
+from ..model.builder import COEFFICIENT_ALIASES, ModelBuilder, resolve_cloth_grid
 from ..model.topology import pin_mask
 from ..run.options import SolverConfig
 from ._yaml import (ALIAS_EXPANSION, MAX_NESTING, MAX_SCENE_BYTES, MIN_EXPANDED_NODES,  # noqa: F401 (the limits)
@@ -120,12 +120,13 @@ class Scene:
         :meth:`~springsim.ModelBuilder.add_cloth_grid`), ``gravity``, ``up_axis``, ``metadata`` and ``paths`` (the
         builder's error paths -> the block's). None for other scenes.
     stream : dict or None
-        For a scene file with item lists (``particles``, ``springs``, ...) and no generator block, loaded with
-        ``build=False``: what a distributed run needs to read its lists in pieces on one rank and send every rank
-        its part (:func:`springsim.distributed.streamed_part`): ``outline``
-        (:class:`~springsim.scene.yaml_stream.SceneOutline`), ``gravity``, ``up_axis``, ``model_data`` (term ->
-        its per-model values, type-checked), ``pin`` (the ``pin:`` value, checked where it is applied) and
-        ``metadata``. The model is then not built (``model`` None). None for other scenes.
+        For a scene file loaded with ``build=False`` that is not one generator block alone: what a
+        distributed run needs to read its lists in pieces on one rank and send every rank its part
+        (:func:`springsim.distributed.streamed_part`): ``outline`` (:class:`~springsim.scene.yaml_stream.SceneOutline`),
+        ``gravity``, ``up_axis``, ``model_data`` (term -> its per-model values, type-checked), ``pin`` (the ``pin:``
+        value, checked where it is applied), ``metadata``, ``cloths`` (the generator blocks, as :attr:`generator`'s
+        ``grid`` and ``paths``: ``(path, keywords, paths)`` each, their values checked) and ``generated`` (``(key,
+        particles)``: what they create). The model is then not built (``model`` None). None for other scenes.
     """
 
     model: Model | None
@@ -499,21 +500,60 @@ def _model_data(doc: dict, terms: list) -> dict:
             if not any(spec.per == "pair" for spec in cls.data) and doc.get(key) is not None}
 
 
+def _parse_generators(doc: dict) -> tuple[list, int, str]:
+    """The generator blocks (``cloth:``, a list of them, ``benchmark_cloth:``) in the order they add particles:
+    ``(path, add_cloth_grid keywords, builder path -> YAML path)`` each; the particles they create, at most
+    :data:`MAX_GENERATED_PARTICLES`; the key to name in errors about them."""
+    cloth = doc.get("cloth")
+    if cloth is None:
+        cloths = []
+    elif type(cloth) is dict:
+        cloths = [_parse_cloth("cloth", cloth)]
+    elif type(cloth) is list:
+        cloths = [_parse_cloth(f"cloth[{k}]", c) for k, c in enumerate(cloth)]
+    else:
+        raise SceneError("cloth", f"must be a mapping or a list of mappings, got {_type_name(cloth)}")
+    if "benchmark_cloth" in doc:
+        cloths.append(_parse_benchmark(doc["benchmark_cloth"]))
+    generated = sum(kw["nx"] * kw["ny"] for _, kw, _ in cloths)
+    where = "cloth" if "cloth" in doc else "benchmark_cloth"
+    if generated > MAX_GENERATED_PARTICLES:
+        raise SceneError(where, f"generator blocks would create {generated} particles, more than the limit "
+                                f"springsim.scene.yaml_io.MAX_GENERATED_PARTICLES = {MAX_GENERATED_PARTICLES}")
+    return cloths, generated, where
+
+
+def _single_generator(doc: dict, cloths: list, terms: list) -> bool:
+    """Whether a scene is one generator block and nothing else (no particles, pair lists, term data or ``pin``):
+    a distributed run generates its parts (:attr:`Scene.generator`)."""
+    return len(cloths) == 1 and all(doc.get(key) is None for key in ("particles", "pin") + tuple(
+        key for _, _, key in terms))
+
+
 def _outlined_scene(outline) -> Scene:
-    """The :class:`Scene` of a file's outline (:func:`springsim.scene.yaml_stream.outline`) with item lists and no
-    generator block: every section but the lists checked, the model left to be built in parts (:attr:`Scene.stream`).
-    """
+    """The :class:`Scene` of a file's outline (:func:`springsim.scene.yaml_stream.outline`) with item lists: every
+    section but the lists checked (the generator blocks' values too), the model left to be built in parts
+    (:attr:`Scene.stream`)."""
     doc, source = outline.doc, outline.source
     terms = _check_top(doc, source)
-    cfg, gravity, up = _parse_solver(doc, None)
-    n = outline.counts.get("particles", 0)
+    for key in _item_list_keys():  # a list read in pieces is [] here; anything else but null is an error
+        _item_list(key, doc.get(key))
+    cloths, generated, where = _parse_generators(doc)
+    grids = []
+    for path, kw, paths in cloths:  # the blocks' values, checked now; their pins where they are generated
+        try:
+            grids.append(resolve_cloth_grid(**{k: v for k, v in kw.items() if k != "pin"}))
+        except SceneError as e:
+            raise _renamed(e, paths) from None
+    cfg, gravity, up = _parse_solver(doc, BENCHMARK_DT if "benchmark_cloth" in doc else None)
+    n = outline.counts.get("particles", 0) + generated
     if n == 0:
         raise SceneError("particles", "the scene has no particles (give 'particles', 'cloth' or 'benchmark_cloth')")
     model_data = _model_data(doc, terms)
     plot = _parse_plot(doc["plot"], n) if doc.get("plot") is not None else None
     name = doc.get("name") or Path(source).stem
     stream = dict(outline=outline, gravity=gravity, up_axis=up, model_data=model_data, pin=doc.get("pin"),
-                  metadata=dict(name=name, source=source))
+                  metadata=dict(name=name, source=source), cloths=cloths, generated=(where, generated))
     return Scene(model=None, config=cfg, plot=plot, source=source, name=name,
                  metadata={"description": doc.get("description", "")}, sha256=outline.sha256, stream=stream)
 
@@ -545,25 +585,9 @@ def parse_scene(doc, *, source: str = "<string>", build: bool = True) -> Scene:
     terms = _check_top(doc, source)
 
     # generator blocks first, to know the particle count for id checks
-    cloth = doc.get("cloth")
-    if cloth is None:
-        cloths = []
-    elif type(cloth) is dict:
-        cloths = [_parse_cloth("cloth", cloth)]
-    elif type(cloth) is list:
-        cloths = [_parse_cloth(f"cloth[{k}]", c) for k, c in enumerate(cloth)]
-    else:
-        raise SceneError("cloth", f"must be a mapping or a list of mappings, got {_type_name(cloth)}")
-    if "benchmark_cloth" in doc:
-        cloths.append(_parse_benchmark(doc["benchmark_cloth"]))
-    generated = sum(kw["nx"] * kw["ny"] for _, kw, _ in cloths)
-    where = "cloth" if "cloth" in doc else "benchmark_cloth"
-    if generated > MAX_GENERATED_PARTICLES:
-        raise SceneError(where, f"generator blocks would create {generated} particles, more than the limit "
-                                f"springsim.scene.yaml_io.MAX_GENERATED_PARTICLES = {MAX_GENERATED_PARTICLES}")
+    cloths, generated, where = _parse_generators(doc)
     # one generator block alone: a distributed run generates its parts (Scene.generator)
-    single = len(cloths) == 1 and all(doc.get(key) is None for key in ("particles", "pin") + tuple(
-        key for _, _, key in terms))
+    single = _single_generator(doc, cloths, terms)
     lazy = single and not build
     if not lazy:
         check_generated_memory(where, generated)
@@ -662,8 +686,8 @@ def load_scene(path_or_text, *, build: bool = True) -> Scene:
         A path (a ``PathLike``, or a one-line string ending in ``.yaml``/``.yml`` or
         naming an existing file) or the YAML text itself.
     build : bool
-        False, for a file: a scene of one generator block is not built (:func:`parse_scene`), and a scene with
-        item lists and no generator block is outlined, its lists not read (:attr:`Scene.stream`,
+        False, for a file: the model is not built. A scene of one generator block is described
+        (:attr:`Scene.generator`); any other is outlined, its item lists not read (:attr:`Scene.stream`,
         :mod:`springsim.scene.yaml_stream`).
 
     Returns
@@ -684,9 +708,7 @@ def load_scene(path_or_text, *, build: bool = True) -> Scene:
     (1, 'implicit_euler')
     """
     if not build and _looks_like_path(path_or_text):
-        scene = _outlined(os.fspath(path_or_text))
-        if scene is not None:
-            return scene
+        return _outlined(os.fspath(path_or_text))
     if _looks_like_path(path_or_text):
         source = os.fspath(path_or_text)
         text, data = _read_scene_file(source)
@@ -716,17 +738,19 @@ def load_scene(path_or_text, *, build: bool = True) -> Scene:
     return scene
 
 
-def _outlined(source: str) -> Scene | None:
-    """The scene of a file read as an outline (:func:`load_scene` with ``build=False``): a scene without item lists
-    whole (its outline is the document), one with item lists and no generator block left to be read in parts; None
-    for a scene with both (read and built whole)."""
+def _outlined(source: str) -> Scene:
+    """The scene of a file read as an outline (:func:`load_scene` with ``build=False``): a scene of one generator block
+    left to be generated per rank (:attr:`Scene.generator`), any other left to be read and built in parts
+    (:attr:`Scene.stream`)."""
     from .yaml_stream import outline
 
     o = outline(source, _item_list_keys())
-    if o.counts and ("cloth" in o.doc or "benchmark_cloth" in o.doc):
-        return None
     try:
-        scene = _outlined_scene(o) if o.counts else parse_scene(o.doc, source=source, build=False)
+        if not o.counts and type(o.doc) is dict and _single_generator(o.doc, _parse_generators(o.doc)[0],
+                                                                       _term_keys()):
+            scene = parse_scene(o.doc, source=source, build=False)  # generated per rank from its description
+        else:
+            scene = _outlined_scene(o)
     except RecursionError:
         raise SceneError(source, "YAML document is nested too deeply") from None
     scene.sha256 = o.sha256

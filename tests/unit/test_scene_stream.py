@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import yaml
-from helpers import assert_same_part, mixed_scene_yaml
+from helpers import TWO_CLOTHS_YAML, assert_same_part, mixed_scene_yaml
 
 import springsim.scene.yaml_stream as ys
 from springsim.distributed.scene import model_part
@@ -112,20 +112,29 @@ def test_load_scene_without_building(mixed):
     assert g.sha256 == load_scene(shipped_scene("cloth_16")).sha256
 
 
-def test_a_scene_with_lists_and_a_generator_block_is_built_whole(tmp_path):
+def test_a_scene_with_lists_and_generator_blocks_is_outlined(tmp_path):
+    """Generator blocks beside item lists: their values checked with the outline (errors named as in the file),
+    the particles they create counted (the plot's particle id may name one)."""
     p = tmp_path / "s.yaml"
     p.write_text("solver: {type: implicit_euler, timestep: 0.01}\ncloth: {nx: 3, ny: 3}\n"
-                 "particles: [{pos: [5, 5, 5], mass: 1}]\n")
+                 "particles: [{pos: [5, 5, 5], mass: 1}]\nplot: {particle_id: 9, dof: 2}\n")
     s = load_scene(p, build=False)
-    assert s.model is not None and s.model.particle_count == 10 and s.stream is None
+    assert s.model is None and s.stream["generated"] == ("cloth", 9) and len(s.stream["cloths"]) == 1
+    p.write_text("solver: {type: implicit_euler, timestep: 0.01}\ncloth: [{nx: 3, ny: 3}, {nx: 3, ny: 3, ke: -1}]\n"
+                 "particles: [{pos: [5, 5, 5], mass: 1}]\n")
+    with pytest.raises(SceneError) as e:
+        load_scene(p, build=False)
+    assert (e.value.path, e.value.message) == ("cloth[1].ke", "must be >= 0, got -1")
 
 
 # -- built in parts ---------------------------------------------------------------------------------------------------
 @pytest.mark.parametrize("chunk", [2, 1 << 16])
-@pytest.mark.parametrize("name", ["mixed"] + LISTED)
+@pytest.mark.parametrize("name", ["mixed", "mixed_cloths", "two_cloths"] + LISTED)
 def test_streamed_part_is_the_whole_models_part(name, chunk, mixed, monkeypatch):
     monkeypatch.setattr(ys, "CHUNK_ITEMS", chunk)
-    path = mixed if name == "mixed" else shipped_scene(name)
+    if name != "mixed":
+        mixed.write_text(mixed_scene_yaml(cloths=True) if name == "mixed_cloths" else TWO_CLOTHS_YAML)
+    path = mixed if name in ("mixed", "mixed_cloths", "two_cloths") else shipped_scene(name)
     whole = load_scene(path).model
     got, ref = streamed_part(load_scene(path, build=False), OneRank()), model_part(whole, 1, 0)
     assert got.model_fingerprint == whole.fingerprint()
