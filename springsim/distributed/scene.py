@@ -392,11 +392,11 @@ def cloth_grid_fingerprint(grid: dict, *, gravity: float = -9.81, up_axis="z") -
     with _global_ids(ids):
         t = tb.finalize()
 
-    blocks = grid_spring_blocks(c)
+    blocks = _grid_spring_blocks(c)
     counts = {}  # (block, band) -> springs: the coefficients need only the counts
 
     def block_pairs(b, r0, r1):
-        ij, w1 = grid_block_pairs(c, blocks[b], r0, r1)
+        ij, w1 = _grid_block_pairs(c, blocks[b], r0, r1)
         counts[b, r0] = len(ij)
         return ij, w1
 
@@ -445,11 +445,11 @@ def cloth_grid_fingerprint(grid: dict, *, gravity: float = -9.81, up_axis="z") -
                                 cloth_grids=(ClothGrid(0, nx, ny),), beyond=beyond)
 
 
-def grid_spring_blocks(c: dict) -> list:
+def _grid_spring_blocks(c: dict) -> list:
     """A resolved grid's springs (:func:`~springsim.model.builder.resolve_cloth_grid`) in the builder's order, as
     blocks ``(family, (stiffness, damping), offset j - i)``: family by family, within a family its blocks of one
     offset in :func:`~springsim.model.topology.cloth_grid_pairs`' order, each in row-major order of its first
-    particle (:func:`grid_block_pairs`)."""
+    particle (:func:`_grid_block_pairs`)."""
     topo = cloth_grid_pairs(c["nx"], min(c["ny"], 3), bending=c["bending"])
     blocks = []
     for family, coef in c["springs"].items():
@@ -458,8 +458,8 @@ def grid_spring_blocks(c: dict) -> list:
     return blocks
 
 
-def grid_block_pairs(c: dict, block: tuple, r0: int, r1: int) -> tuple:
-    """The springs of one block of :func:`grid_spring_blocks` whose first particle is in rows ``r0 .. r1 - 1``, as
+def _grid_block_pairs(c: dict, block: tuple, r0: int, r1: int) -> tuple:
+    """The springs of one block of :func:`_grid_spring_blocks` whose first particle is in rows ``r0 .. r1 - 1``, as
     pairs of grid indices less ``r0 * nx``, and the row after the last one they reach."""
     family, _, off = block
     nx, ny = c["nx"], c["ny"]

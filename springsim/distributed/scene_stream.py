@@ -168,7 +168,7 @@ def _read(mpi, stream: dict, poff: np.ndarray, qoff: dict, terms: list, root: in
                 term, cls = by_key[key]
                 yield term, start, _pair_chunk(cls, key, items, start, n)
         yield from _grid_chunks(stream, outline.counts.get("particles", 0),
-                                outline.counts.get(by_key_of(terms, "spring"), 0))
+                                outline.counts.get(_list_key(terms, "spring"), 0))
 
     if rank == root:
         err = None
@@ -206,7 +206,7 @@ def _read(mpi, stream: dict, poff: np.ndarray, qoff: dict, terms: list, root: in
     return {what: _stacked([cols for _, cols in sorted(pieces, key=lambda x: x[0])]) for what, pieces in got.items()}
 
 
-def by_key_of(terms: list, term: str) -> str:
+def _list_key(terms: list, term: str) -> str:
     """The YAML key of a pair term's list (``spring`` -> ``springs``)."""
     return next(key for t, _, key in terms if t == term)
 
@@ -216,9 +216,9 @@ def _grid_chunks(stream: dict, start: int, springs: int):
     the file's own (particles from ``start``, springs from ``springs``), a band of grid rows at a time
     (:data:`~springsim.distributed.scene.FINGERPRINT_PIECE` particles): the values of
     :meth:`springsim.ModelBuilder.add_cloth_grid` to the last bit (the same resolved grid and arithmetic,
-    :func:`~springsim.distributed.scene.grid_spring_blocks`). Memory: the grid's pin mask and one band."""
+    :func:`~springsim.distributed.scene._grid_spring_blocks`). Memory: the grid's pin mask and one band."""
     from ..forces import FORCE_TERMS
-    from .scene import FINGERPRINT_PIECE, _grid_positions, _resolved_grid, grid_block_pairs, grid_spring_blocks
+    from .scene import FINGERPRINT_PIECE, _grid_positions, _resolved_grid, _grid_block_pairs, _grid_spring_blocks
 
     specs = [s for s in FORCE_TERMS["spring"].data if s.per == "pair"]
     for path, kw, paths in stream.get("cloths", ()):
@@ -238,10 +238,10 @@ def _grid_chunks(stream: dict, start: int, springs: int):
             except SceneError as e:
                 raise _counted_from(e, "particles", start + r0 * nx) from None
             yield "particles", start + r0 * nx, cols
-        for block in grid_spring_blocks(c):
+        for block in _grid_spring_blocks(c):
             ke, kd = block[1]
             for r0, r1 in bands:
-                ij, _ = grid_block_pairs(c, block, r0, r1)
+                ij, _ = _grid_block_pairs(c, block, r0, r1)
                 k = len(ij)
                 if not k:
                     continue
