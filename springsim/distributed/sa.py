@@ -313,6 +313,7 @@ class SmoothedAggregation:
         if old:
             old[0].A = A
         levels = old[:1] if old else [_Level(A, owned=False)]
+        levels[0].sweep = None  # (the old copy goes before the new rows are read)
         self._finest_rows(levels[0], A, int(block))
         Bk = np.asarray(B_own, dtype=np.float64)
         while len(levels) < self.max_levels:
@@ -380,6 +381,7 @@ class SmoothedAggregation:
         try:
             levels = self.levels
             if len(levels) > 1:
+                levels[0].sweep = None  # (the old copy goes before the new rows are read)
                 self._finest_rows(levels[0], levels[0].A, levels[0].extract.bs)
                 if self._sweeps(levels[0].A):  # the sweeps' copy from the rows just read
                     self._set_sweep(levels[0], levels[0].rows.square())
@@ -406,7 +408,7 @@ class SmoothedAggregation:
         """
         lv = self.levels[0]
         if lv.sweep is None or lv.sweep[0] != lv.A.stateGet():
-            lv.sweep = None  # (the old copy goes before the new one is made)
+            lv.sweep = None  # (the old copy goes before the new rows are read)
             self._set_sweep(lv, lv.extract(lv.A).square())
             self.sweep_refreshes += 1
         return lv.sweep[1], lv.sweep[2]
@@ -414,6 +416,7 @@ class SmoothedAggregation:
     def _set_sweep(self, lv: _Level, sq: sp.bsr_matrix, dinv: np.ndarray | None = None) -> None:
         """``lv.sweep`` from the rank's diagonal block ``sq`` of the finest level's current values (``Rows.square``:
         the rows themselves on one rank) and its inverted diagonal blocks (computed unless given)."""
+        lv.sweep = None  # (the old copy goes before the new one is made)
         if dinv is None:
             _, dinv = block_diagonal_inverse(sq, self.kernels)
         lv.sweep = (lv.A.stateGet(), (sq.indptr, sq.indices, np.ascontiguousarray(sq.data)), dinv)
