@@ -202,7 +202,7 @@ class SmoothedAggregation:
         (point sweeps on the AIJ matrix), as on the coarser levels (which are BAIJ). ``"gs"``: a symmetric block
         Gauss-Seidel sweep over the rank's diagonal block with the serial V-cycle's compiled kernels on a BSR copy of
         it (:class:`_Sweep`): the same iterations, a fifth less time per solve on the benchmark cloth, the memory of
-        that copy (5 % more per rank at n = 512).
+        that copy (3-5 % more per rank at n = 512).
 
     Notes
     -----

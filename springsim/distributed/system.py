@@ -93,7 +93,7 @@ GAMG_DEFAULTS = {"mg_levels_ksp_chebyshev_esteig": "0,0.1,0,1.3"}
 #:   the AIJ matrix) or ``gs`` (a symmetric block Gauss-Seidel sweep there with springsim's compiled kernels on a
 #:   BSR copy of the rank's diagonal block, :class:`~springsim.distributed.sa.SmoothedAggregation`): the same
 #:   iterations; on the benchmark cloth at n = 512, 22-26 % less time per solve and a one-rank step 1.14-1.20x the
-#:   serial one instead of 1.24-1.37x, for 5 % more memory per rank (BENCHMARKS.md#distributed).
+#:   serial one instead of 1.24-1.40x, for 3-5 % more memory per rank (BENCHMARKS.md#distributed).
 #: * ``-springsim_insertion``: ``direct`` (the owned rows' values gathered straight into the AIJ matrix's arrays,
 #:   :class:`~springsim.distributed._aij.DirectInsertion`, checked once against PETSc's own insertion and replaced
 #:   by it where they differ) or ``petsc`` (``MatSetValuesBlockedLocal`` for every block).
