@@ -51,13 +51,12 @@ def _load_agreed(args):
             # a scene of one generator block is not built: every rank generates its part (_scene_parts); rank 0
             # generates its own here, which checks the block's values before the verdict
             scene, cfg = load_and_configure(args, build=False)
-            if scene.stream is not None and scene.stream["generated"][1]:  # generator blocks beside the lists
-                from ..scene.yaml_io import check_generated_memory
+            from ..scene.yaml_io import check_generated_memory
 
+            if scene.stream is not None and scene.stream["generated"][1]:  # generator blocks beside the lists
                 check_generated_memory(*scene.stream["generated"], env_size())
             if scene.generator is not None and scene.model is None and cfg.backend == "petsc":  # (serial: refused below)
                 from ..distributed import generated_part
-                from ..scene.yaml_io import check_generated_memory
 
                 grid = scene.generator["grid"]
                 check_generated_memory(scene.generator["paths"]["cloth"], grid["nx"] * grid["ny"], env_size())

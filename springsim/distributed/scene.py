@@ -549,6 +549,24 @@ def _route(mpi, dest: np.ndarray, arrays: dict) -> dict:
     return {k: np.concatenate([g[k] for g in got]) for k in arrays}
 
 
+def _fetch(mpi, ids: np.ndarray, offsets: np.ndarray, cols: dict) -> dict:
+    """Rows ``ids`` (global indices: particle ids, system rows) of the columns ``cols``, which the ranks hold in the
+    contiguous blocks ``offsets`` (collective): asked of their holders (two all-to-alls), in the order of ``ids``."""
+    rank = mpi.Get_rank()
+    holder = np.searchsorted(offsets, ids, side="right") - 1
+    ask = _route(mpi, holder, {"id": ids, "rank": np.full(ids.size, rank, dtype=np.int64),
+                               "slot": np.arange(ids.size, dtype=np.int64)})
+    k = ask["id"] - offsets[rank]
+    reply = _route(mpi, ask["rank"], {"slot": ask["slot"], **{c: v[k] for c, v in cols.items()}})
+    out = {}
+    for c, v in reply.items():
+        if c != "slot":
+            a = np.empty((ids.size,) + v.shape[1:], dtype=v.dtype)
+            a[reply["slot"]] = v
+            out[c] = a
+    return out
+
+
 def repartition(scene: ScenePart, parts: np.ndarray, comm=None) -> ScenePart:
     """Move a scene's particles and pairs to new owners (collective): ``parts[i]`` is the new rank of this rank's
     owned particle ``i``; the system is then numbered part by part, the serial order kept within a part.
@@ -589,12 +607,8 @@ def repartition(scene: ScenePart, parts: np.ndarray, comm=None) -> ScenePart:
     owner, sys = np.full(L, -1, dtype=np.int64), np.full(L, -1, dtype=np.int64)
     owner[:p.n_own], sys[:p.n_own] = parts, new_sys
     g = np.arange(p.n_own, p.n_local_free)
-    old = p.local_to_free[g]
-    ask = _route(mpi, np.searchsorted(p.offsets, old, side="right") - 1,
-                 {"old": old, "rank": np.full(g.size, rank, dtype=np.int64), "slot": g})
-    k = ask["old"] - p.lo
-    reply = _route(mpi, ask["rank"], {"slot": ask["slot"], "owner": parts[k], "sys": new_sys[k]})
-    owner[reply["slot"]], sys[reply["slot"]] = reply["owner"], reply["sys"]
+    reply = _fetch(mpi, p.local_to_free[g], p.offsets, {"owner": parts, "sys": new_sys})
+    owner[g], sys[g] = reply["owner"], reply["sys"]
 
     pm, om = p.pair_model, p.particle_model
     registered = dict(data_terms())

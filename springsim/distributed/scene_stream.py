@@ -46,7 +46,7 @@ from ..model.model import _has_data, _model_names, fingerprint_v1_names, streame
 from ..model.topology import pin_boxes, pin_mask
 from ..scene.yaml_io import _parse_pairs, _parse_particles, _renamed, _spelled_as_written, _term_keys
 from .partition import _sub_model, contiguous_offsets, local_part
-from .scene import _BASE, ScenePart, _as_mpi, _grid_spring_count, _route
+from .scene import _BASE, ScenePart, _as_mpi, _fetch, _grid_spring_count, _route
 
 __all__ = ["streamed_part"]
 
@@ -118,24 +118,6 @@ def _agree(mpi, err: SceneError | None) -> None:
     first = next((e for e in got if e is not None), None)
     if first is not None:
         raise SceneError(*first)
-
-
-def _fetch(mpi, ids: np.ndarray, offsets: np.ndarray, cols: dict) -> dict:
-    """Rows ``ids`` (global particle ids) of the particle columns ``cols``, held in blocks ``offsets`` by the ranks
-    (collective): asked of their holders, in the order of ``ids``."""
-    rank = mpi.Get_rank()
-    holder = np.searchsorted(offsets, ids, side="right") - 1
-    ask = _route(mpi, holder, {"id": ids, "rank": np.full(ids.size, rank, dtype=np.int64),
-                               "slot": np.arange(ids.size, dtype=np.int64)})
-    k = ask["id"] - offsets[rank]
-    reply = _route(mpi, ask["rank"], {"slot": ask["slot"], **{c: v[k] for c, v in cols.items()}})
-    out = {}
-    for c, v in reply.items():
-        if c != "slot":
-            a = np.empty((ids.size,) + v.shape[1:], dtype=v.dtype)
-            a[reply["slot"]] = v
-            out[c] = a
-    return out
 
 
 def _stacked(pieces: list) -> dict:

@@ -100,6 +100,15 @@ GAMG_DEFAULTS = {"mg_levels_ksp_chebyshev_esteig": "0,0.1,0,1.3"}
 SPRINGSIM_OPTIONS = {"springsim_fine_smoother": "sor", "springsim_pc_reuse": "2", "springsim_pc": "sa",
                      "springsim_sa_smoother": "sor", "springsim_insertion": "direct"}
 
+def _choice(opts, name: str, choices) -> str:
+    """springsim's option ``-name`` from PETSc's options database (default :data:`SPRINGSIM_OPTIONS`), one of
+    ``choices``; a SceneError naming it otherwise."""
+    value = opts.getString(name, SPRINGSIM_OPTIONS[name])
+    if value not in choices:
+        raise SceneError("petsc_options", f"-{name} must be {' or '.join(choices)}, got {value!r:.40}")
+    return value
+
+
 #: The values of ``-springsim_pc``.
 SPRINGSIM_PCS = ("sa", "gamg")
 
@@ -424,24 +433,12 @@ class DistributedSystem(System):
         for name, value in GAMG_DEFAULTS.items():  # only where no source (flags, PETSC_OPTIONS) set them
             if not opts.hasName(name):
                 opts[name] = value
-        self.fine_smoother = opts.getString("springsim_fine_smoother", SPRINGSIM_OPTIONS["springsim_fine_smoother"])
-        if self.fine_smoother not in ("sor", "gamg"):
-            raise SceneError("petsc_options", f"-springsim_fine_smoother must be sor or gamg, got "
-                                              f"{self.fine_smoother!r:.40}")
-        self.springsim_pc = opts.getString("springsim_pc", SPRINGSIM_OPTIONS["springsim_pc"])
-        if self.springsim_pc not in SPRINGSIM_PCS:
-            raise SceneError("petsc_options", f"-springsim_pc must be {' or '.join(SPRINGSIM_PCS)}, got "
-                                              f"{self.springsim_pc!r:.40}")
-        self.insertion = opts.getString("springsim_insertion", SPRINGSIM_OPTIONS["springsim_insertion"])
-        if self.insertion not in ("direct", "petsc"):
-            raise SceneError("petsc_options", f"-springsim_insertion must be direct or petsc, got "
-                                              f"{self.insertion!r:.40}")
+        self.fine_smoother = _choice(opts, "springsim_fine_smoother", ("sor", "gamg"))
+        self.springsim_pc = _choice(opts, "springsim_pc", SPRINGSIM_PCS)
+        self.insertion = _choice(opts, "springsim_insertion", ("direct", "petsc"))
         #: the preconditioner is springsim's smoothed aggregation (no -pc_type option and no other pc_type given)
         self.use_sa = self.springsim_pc == "sa" and pc_type is None and not opts.hasName("pc_type")
-        sa_smoother = opts.getString("springsim_sa_smoother", SPRINGSIM_OPTIONS["springsim_sa_smoother"])
-        if sa_smoother not in SMOOTHERS:
-            raise SceneError("petsc_options", f"-springsim_sa_smoother must be {' or '.join(SMOOTHERS)}, got "
-                                              f"{sa_smoother!r:.40}")
+        sa_smoother = _choice(opts, "springsim_sa_smoother", SMOOTHERS)
         self._sa = SmoothedAggregation(PETSc, self.comm, smoother=sa_smoother) if self.use_sa else None
         self._sa_whole = True  # kept levels serve a matrix of the same coefficients whole (until that goes stale)
         self._coefficients = None  # (a, b) of the last assembly

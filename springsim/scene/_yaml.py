@@ -9,8 +9,10 @@ documents) and :mod:`springsim.scene.yaml_stream` (documents in pieces) read thr
 
 from __future__ import annotations
 
+import os
 import re
 import reprlib
+import stat
 from contextlib import contextmanager
 
 import yaml
@@ -169,9 +171,33 @@ def _yaml_errors(source: str):
         raise SceneError(source, f"YAML value out of range: {_one_line(str(e))[:200]}") from None
     except RecursionError:
         raise SceneError(source, "YAML document is nested too deeply") from None
+    except OSError as e:  # a file read while it is parsed (springsim.scene.yaml_stream)
+        raise SceneError(source, f"cannot read: {e.strerror or e}") from None
     except MemoryError:
         raise SceneError(source, "the scene does not fit in memory") from None
 
 
 def _one_line(s: str) -> str:
     return " ".join(s.split())
+
+
+def open_scene_file(source: str):
+    """A scene file opened for reading (binary), and its size: a regular file of at most :data:`MAX_SCENE_BYTES`
+    (a directory, device, FIFO or socket is refused before it is opened, so that nothing blocks on it)."""
+    try:
+        st = os.stat(source)
+    except FileNotFoundError:
+        raise SceneError(source, "no such file") from None
+    except OSError as e:
+        raise SceneError(source, f"cannot read: {e.strerror or e}") from None
+    if stat.S_ISDIR(st.st_mode):
+        raise SceneError(source, "is a directory, not a scene file")
+    if not stat.S_ISREG(st.st_mode):
+        raise SceneError(source, "not a regular file (a device, FIFO or socket); give a scene file")
+    if st.st_size > MAX_SCENE_BYTES:
+        raise SceneError(source, f"is {st.st_size} bytes, more than the limit of {MAX_SCENE_BYTES} bytes "
+                                 f"(springsim.scene.yaml_io.MAX_SCENE_BYTES); use a generator block for big cloths")
+    try:
+        return open(source, "rb"), st.st_size  # noqa: SIM115 (closed by the caller)
+    except OSError as e:
+        raise SceneError(source, f"cannot read: {e.strerror or e}") from None

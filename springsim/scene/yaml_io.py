@@ -35,7 +35,6 @@ import inspect
 import math
 import os
 import re
-import stat
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -50,7 +49,7 @@ from ..model.builder import COEFFICIENT_ALIASES, ModelBuilder, resolve_cloth_gri
 from ..model.topology import pin_mask
 from ..run.options import SolverConfig
 from ._yaml import (ALIAS_EXPANSION, MAX_NESTING, MAX_SCENE_BYTES, MIN_EXPANDED_NODES,  # noqa: F401 (the limits)
-                    _check_document_shape, _Loader, _show, _type_name, _yaml_errors)
+                    _check_document_shape, _Loader, _show, _type_name, _yaml_errors, open_scene_file)
 from .gallery import BENCHMARK_DT, benchmark_cloth_grid
 
 __all__ = ["Scene", "PlotSpec", "load_scene", "parse_scene", "check_generated_memory",
@@ -643,21 +642,9 @@ def parse_scene(doc, *, source: str = "<string>", build: bool = True) -> Scene:
 
 def _read_scene_file(source: str) -> tuple[str, bytes]:
     """The text of a scene file (a regular file of at most :data:`MAX_SCENE_BYTES`, UTF-8) and its bytes."""
+    fh, _ = open_scene_file(source)
     try:
-        st = os.stat(source)
-    except FileNotFoundError:
-        raise SceneError(source, "no such file") from None
-    except OSError as e:
-        raise SceneError(source, f"cannot read: {e.strerror or e}") from None
-    if stat.S_ISDIR(st.st_mode):
-        raise SceneError(source, "is a directory, not a scene file")
-    if not stat.S_ISREG(st.st_mode):
-        raise SceneError(source, "not a regular file (a device, FIFO or socket); give a scene file")
-    if st.st_size > MAX_SCENE_BYTES:
-        raise SceneError(source, f"is {st.st_size} bytes, more than the limit of {MAX_SCENE_BYTES} bytes "
-                                 f"(springsim.scene.yaml_io.MAX_SCENE_BYTES); use a generator block for big cloths")
-    try:
-        with open(source, "rb") as fh:
+        with fh:
             data = fh.read(MAX_SCENE_BYTES + 1)  # bounded even if the file grows while it is read
     except OSError as e:
         raise SceneError(source, f"cannot read: {e.strerror or e}") from None

@@ -28,7 +28,8 @@ from dataclasses import dataclass, field
 import yaml
 
 from ..errors import SceneError
-from ._yaml import MAX_SCENE_BYTES, _check_document_shape, _Loader, _show, _type_name, _yaml_errors
+from ._yaml import (MAX_SCENE_BYTES, _check_document_shape, _Loader, _show, _type_name, _yaml_errors,
+                    open_scene_file)
 
 __all__ = ["SceneOutline", "outline", "item_chunks", "CHUNK_ITEMS"]
 
@@ -122,21 +123,6 @@ def _source_of(loader) -> str:
     return getattr(loader, "scene_source", "<scene>")
 
 
-def _open(source: str):
-    try:
-        st = os.stat(source)
-        fh = open(source, "rb")  # noqa: SIM115 (closed by the caller)
-    except FileNotFoundError:
-        raise SceneError(source, "no such file") from None
-    except OSError as e:
-        raise SceneError(source, f"cannot read: {e.strerror or e}") from None
-    if st.st_size > MAX_SCENE_BYTES:
-        fh.close()
-        raise SceneError(source, f"is {st.st_size} bytes, more than the limit of {MAX_SCENE_BYTES} bytes "
-                                 f"(springsim.scene.yaml_io.MAX_SCENE_BYTES); use a generator block for big cloths")
-    return fh, st.st_size
-
-
 def _top_level(loader, source: str) -> Iterator:
     """The top-level keys of the document, as they come; the caller consumes each key's value."""
     loader.get_event()  # stream start
@@ -185,7 +171,7 @@ def outline(source, lists) -> SceneOutline:
     """
     source = os.fspath(source)
     lists = frozenset(lists)
-    fh, size = _open(source)
+    fh, size = open_scene_file(source)
     with fh, _yaml_errors(source):
         _check_document_shape(io.BufferedReader(_Hashing(fh, MAX_SCENE_BYTES, source)), source, size=size)
         fh.seek(0)
@@ -207,10 +193,7 @@ def outline(source, lists) -> SceneOutline:
                     doc[key] = loader.one()
         finally:
             loader.dispose()
-        try:
-            raw.read()  # the rest of the bytes (after the document), for the hash
-        except OSError:
-            pass
+        raw.read()  # the rest of the bytes (after the document), for the hash
     return SceneOutline(source=source, sha256=raw.hash.hexdigest(), doc=doc, counts=counts)
 
 
@@ -240,7 +223,7 @@ def item_chunks(scene: SceneOutline, chunk: int | None = None) -> Iterator[tuple
     """
     source = scene.source
     chunk = CHUNK_ITEMS if chunk is None else int(chunk)
-    fh, _ = _open(source)
+    fh, _ = open_scene_file(source)
     with fh, _yaml_errors(source):
         raw = _Hashing(fh, MAX_SCENE_BYTES, source)
         loader = _ItemLoader(io.BufferedReader(raw))

@@ -3,6 +3,8 @@ against a whole load. One rank here (a stand-in communicator, no MPI); 2 and 3 r
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 import yaml
@@ -172,3 +174,14 @@ def test_pin_mask_of_a_block_is_the_slice_of_the_whole(pin):
         assert np.array_equal(pin_mask(pin, 10, positions=q[lo:hi], rows=(lo, hi)), whole[lo:hi])
     assert len(pin_boxes(pin)) == (sum(isinstance(p, dict) for p in pin) if isinstance(pin, list) else
                                    int(isinstance(pin, dict)))
+
+
+def test_only_regular_files_are_outlined(tmp_path):
+    """The reader of pieces refuses what a whole load refuses, before opening it (a FIFO would block): one opener
+    of scene files serves both (springsim.scene._yaml.open_scene_file)."""
+    with pytest.raises(SceneError, match="is a directory, not a scene file"):
+        ys.outline(tmp_path, LISTS)
+    fifo = tmp_path / "s.yaml"
+    os.mkfifo(fifo)
+    with pytest.raises(SceneError, match="not a regular file"):
+        load_scene(fifo, build=False)
