@@ -100,6 +100,7 @@ GAMG_DEFAULTS = {"mg_levels_ksp_chebyshev_esteig": "0,0.1,0,1.3"}
 SPRINGSIM_OPTIONS = {"springsim_fine_smoother": "sor", "springsim_pc_reuse": "2", "springsim_pc": "sa",
                      "springsim_sa_smoother": "sor", "springsim_insertion": "direct"}
 
+
 def _choice(opts, name: str, choices) -> str:
     """springsim's option ``-name`` from PETSc's options database (default :data:`SPRINGSIM_OPTIONS`), one of
     ``choices``; a SceneError naming it otherwise."""
